@@ -1,0 +1,78 @@
+// evkit: one binary, git-style subcommands.
+
+#include <cstdio>
+#include <exception>
+#include <iostream>
+#include <map>
+#include <string>
+
+#include <opencv2/core/utils/logger.hpp>
+
+#include "common.h"
+#include "evkit/events/error.h"
+
+namespace {
+
+using evkit::cli::Args;
+
+struct Command {
+  int (*run)(const Args&);
+  const char* summary;
+};
+
+const std::map<std::string, Command>& commands() {
+  static const std::map<std::string, Command> table = {
+      {"info", {evkit::cli::runInfo, "describe a recording: format, sensor, events, time span, frames"}},
+      {"convert", {evkit::cli::runConvert, "convert a recording between formats, optionally a time window"}},
+      {"accumulate", {evkit::cli::runAccumulate, "event frames, counts, time surfaces, voxel grids as PNG + .npy"}},
+      {"demo", {evkit::cli::runDemo, "the built-in default job: random recording -> formats -> info -> PNG"}},
+  };
+  return table;
+}
+
+void printUsage() {
+  std::cout << "evkit " << "0.1.0" << " — a toolkit for event cameras\n\n"
+            << "usage: evkit <command> [options]   (evkit <command> --help for its options)\n\ncommands:\n";
+  for (const auto& [name, cmd] : commands()) std::printf("  %-11s %s\n", name.c_str(), cmd.summary);
+  std::cout << "\nexit codes: 0 success, 1 bad input or failed output, 2 bad command line, 3 internal error\n";
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  cv::utils::logging::setLogLevel(cv::utils::logging::LOG_LEVEL_ERROR);
+  if (argc < 2) {
+    printUsage();
+    return evkit::cli::kExitUsage;
+  }
+  const std::string name = argv[1];
+  if (name == "--help" || name == "-h" || name == "help") {
+    printUsage();
+    return evkit::cli::kExitOk;
+  }
+  if (name == "--version") {
+    std::cout << "evkit 0.1.0\n";
+    return evkit::cli::kExitOk;
+  }
+  const auto it = commands().find(name);
+  if (it == commands().end()) {
+    std::cerr << "evkit: unknown command '" << name << "' (see evkit --help)\n";
+    return evkit::cli::kExitUsage;
+  }
+  const Args args(argv + 2, argv + argc);
+  try {
+    return it->second.run(args);
+  } catch (const evkit::cli::UsageError& e) {
+    std::cerr << "evkit " << name << ": " << e.what() << " (see evkit " << name << " --help)\n";
+    return evkit::cli::kExitUsage;
+  } catch (const evkit::Error& e) {
+    std::cerr << "evkit " << name << ": " << e.what() << "\n";
+    return evkit::cli::kExitInputError;
+  } catch (const std::bad_alloc&) {
+    std::cerr << "evkit " << name << ": out of memory\n";
+    return evkit::cli::kExitInputError;
+  } catch (const std::exception& e) {
+    std::cerr << "evkit " << name << ": internal error: " << e.what() << "\n";
+    return evkit::cli::kExitInternal;
+  }
+}

@@ -1,0 +1,22 @@
+// Intensity frames (APS frames, rendered frames, blurry frames) with their exposure interval.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+namespace evkit {
+
+struct Frame {
+  // float32, linear, [0,1]; CV_32FC1 (grey) or CV_32FC3 (colour in OpenCV's BGR order).
+  cv::Mat image;
+  int64_t exposure_start_us = 0;
+  int64_t exposure_end_us = 0;
+  // Bit depth of the source (8 or 16); writers keep it so that 16-bit in gives 16-bit out.
+  int bit_depth = 8;
+
+  int64_t midExposure() const { return exposure_start_us + (exposure_end_us - exposure_start_us) / 2; }
+};
+
+}  // namespace evkit

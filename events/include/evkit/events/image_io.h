@@ -1,0 +1,29 @@
+// Image files, linear (no gamma curve), keeping the bit depth (DESIGN.md §2).
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "evkit/events/frame.h"
+
+namespace evkit {
+
+// Reads an 8- or 16-bit grey or colour image (alpha dropped) as float32 in [0,1]; sets bit_depth.
+// Exposure fields are left at zero. Throws evkit::Error when the file is missing or not an image.
+Frame readImageFile(const std::string& path);
+
+// Writes a float image in [0,1] (values outside are clamped, NaN written as 0) as an 8- or 16-bit
+// PNG/TIFF/... chosen by the extension, atomically.
+void writeImageFile(const std::string& path, const cv::Mat& image, int bit_depth = 8);
+
+// Converts a float [0,1] image to CV_8U/CV_16U with rounding and clamping (NaN -> 0).
+cv::Mat quantize(const cv::Mat& image, int bit_depth);
+
+// Frames beside a file that cannot hold them (text): a folder with one PNG per frame and
+// frames.csv ("index,exposure_start_us,exposure_end_us,file"). Written atomically.
+void writeFrameFolder(const std::string& dir, const std::vector<Frame>& frames);
+std::vector<Frame> readFrameFolder(const std::string& dir);
+
+}  // namespace evkit

@@ -1,0 +1,61 @@
+// A thin RAII layer over the HDF5 C API, with errors turned into evkit::Error.
+#pragma once
+
+#include <hdf5.h>
+
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "evkit/events/error.h"
+
+namespace evkit::detail {
+
+// Owns one HDF5 identifier and closes it with the right H5?close.
+class H5Handle {
+ public:
+  H5Handle() = default;
+  explicit H5Handle(hid_t id) : id_(id) {}
+  H5Handle(H5Handle&& other) noexcept : id_(std::exchange(other.id_, H5I_INVALID_HID)) {}
+  H5Handle& operator=(H5Handle&& other) noexcept {
+    if (this != &other) {
+      reset();
+      id_ = std::exchange(other.id_, H5I_INVALID_HID);
+    }
+    return *this;
+  }
+  ~H5Handle() { reset(); }
+  H5Handle(const H5Handle&) = delete;
+  H5Handle& operator=(const H5Handle&) = delete;
+
+  hid_t get() const { return id_; }
+  bool valid() const { return id_ >= 0; }
+  explicit operator bool() const { return valid(); }
+  void reset();
+
+ private:
+  hid_t id_ = H5I_INVALID_HID;
+};
+
+// Silences HDF5's own error-stack printing; evkit reports errors itself.
+void silenceHdf5Errors();
+
+bool linkExists(hid_t loc, const std::string& path);
+bool attributeExists(hid_t loc, const std::string& name);
+
+// Reads a scalar numeric attribute (converted to the requested type).
+int64_t readIntAttribute(hid_t loc, const std::string& name, const std::string& file);
+void writeIntAttribute(hid_t loc, const std::string& name, int64_t value);
+void writeStringAttribute(hid_t loc, const std::string& name, const std::string& value);
+// Reads an integer array attribute (e.g. event_utils' sensor_resolution).
+std::vector<int64_t> readIntArrayAttribute(hid_t loc, const std::string& name, const std::string& file);
+
+// Dimensions of a dataset.
+std::vector<hsize_t> datasetShape(hid_t dataset);
+
+// Reads elements [begin, begin + count) of a 1-D dataset, converting to mem_type.
+void readRange(hid_t dataset, hid_t mem_type, hsize_t begin, hsize_t count, void* out,
+               const std::string& file, const std::string& name);
+
+}  // namespace evkit::detail

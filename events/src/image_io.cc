@@ -1,0 +1,123 @@
+#include "evkit/events/image_io.h"
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "evkit/events/atomic_file.h"
+#include "evkit/events/error.h"
+#include "evkit/events/decimal.h"
+
+namespace evkit {
+namespace fs = std::filesystem;
+
+Frame readImageFile(const std::string& path) {
+  if (!fs::is_regular_file(path)) throwInFile(path, "no such image file");
+  cv::Mat raw = cv::imread(path, cv::IMREAD_UNCHANGED);
+  if (raw.empty()) throwInFile(path, "not a readable image (expected PNG, TIFF, JPEG, ...)");
+  if (raw.channels() == 4) cv::cvtColor(raw, raw, cv::COLOR_BGRA2BGR);
+  if (raw.channels() == 2) cv::extractChannel(raw, raw, 0);
+  Frame frame;
+  switch (raw.depth()) {
+    case CV_8U:
+      raw.convertTo(frame.image, CV_32F, 1.0 / 255.0);
+      frame.bit_depth = 8;
+      break;
+    case CV_16U:
+      raw.convertTo(frame.image, CV_32F, 1.0 / 65535.0);
+      frame.bit_depth = 16;
+      break;
+    case CV_32F:
+      frame.image = raw;
+      frame.bit_depth = 16;
+      break;
+    default:
+      throwInFile(path, "unsupported pixel type (expected 8- or 16-bit)");
+  }
+  return frame;
+}
+
+cv::Mat quantize(const cv::Mat& image, int bit_depth) {
+  const double scale = bit_depth == 16 ? 65535.0 : 255.0;
+  cv::Mat clean;
+  image.convertTo(clean, CV_32F);
+  cv::patchNaNs(clean, 0.0);
+  cv::Mat out;
+  clean.convertTo(out, bit_depth == 16 ? CV_16U : CV_8U, scale);  // saturating, rounds to nearest
+  return out;
+}
+
+void writeImageFile(const std::string& path, const cv::Mat& image, int bit_depth) {
+  AtomicPath out(path);
+  const std::string ext = fs::path(path).extension().string();
+  // OpenCV picks the codec from the name, so the temporary keeps the extension at its end.
+  const std::string tmp = out.temporaryPath() + ext;
+  bool ok = false;
+  try {
+    ok = cv::imwrite(tmp, image.depth() == CV_32F ? quantize(image, bit_depth) : image);
+  } catch (const cv::Exception& e) {
+    std::error_code ignored;
+    fs::remove(tmp, ignored);
+    throwInFile(path, std::string("cannot write image: ") + e.what());
+  }
+  if (!ok) throwInFile(path, "cannot write image (unknown extension or unwritable folder?)");
+  fs::rename(tmp, out.temporaryPath());
+  out.commit();
+}
+
+void writeFrameFolder(const std::string& dir, const std::vector<Frame>& frames) {
+  AtomicPath out(dir);
+  fs::create_directories(out.temporaryPath());
+  std::ostringstream csv;
+  csv << "index,exposure_start_us,exposure_end_us,file\n";
+  for (size_t i = 0; i < frames.size(); ++i) {
+    char name[32];
+    std::snprintf(name, sizeof(name), "%06zu.png", i);
+    const std::string file = out.temporaryPath() + "/" + name;
+    if (!cv::imwrite(file, quantize(frames[i].image, frames[i].bit_depth))) {
+      throwInFile(dir, std::string("cannot write ") + name);
+    }
+    csv << i << ',' << frames[i].exposure_start_us << ',' << frames[i].exposure_end_us << ',' << name
+        << '\n';
+  }
+  std::ofstream(out.temporaryPath() + "/frames.csv") << csv.str();
+  out.commit();
+}
+
+std::vector<Frame> readFrameFolder(const std::string& dir) {
+  const std::string csv_path = dir + "/frames.csv";
+  std::ifstream csv(csv_path);
+  if (!csv) throwInFile(csv_path, "cannot open");
+  std::vector<Frame> frames;
+  std::string line;
+  int64_t line_no = 0;
+  while (std::getline(csv, line)) {
+    ++line_no;
+    if (line_no == 1 || line.empty()) continue;
+    if (line.back() == '\r') line.pop_back();
+    std::vector<std::string> fields;
+    std::stringstream ss(line);
+    for (std::string field; std::getline(ss, field, ',');) fields.push_back(field);
+    int64_t index = 0, start = 0, end = 0;
+    const char* p0 = fields.size() == 4 ? fields[0].c_str() : nullptr;
+    const char* p1 = fields.size() == 4 ? fields[1].c_str() : nullptr;
+    const char* p2 = fields.size() == 4 ? fields[2].c_str() : nullptr;
+    if (!p0 || !parseInt(p0, p0 + fields[0].size(), 0, INT64_MAX, index) ||
+        !parseInt(p1, p1 + fields[1].size(), INT64_MIN, INT64_MAX, start) ||
+        !parseInt(p2, p2 + fields[2].size(), INT64_MIN, INT64_MAX, end) || end < start) {
+      throwAtLine(csv_path, line_no,
+                  "expected 'index,exposure_start_us,exposure_end_us,file' with start <= end");
+    }
+    Frame frame = readImageFile(dir + "/" + fields[3]);
+    frame.exposure_start_us = start;
+    frame.exposure_end_us = end;
+    frames.push_back(std::move(frame));
+  }
+  return frames;
+}
+
+}  // namespace evkit

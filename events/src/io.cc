@@ -1,0 +1,216 @@
+#include "evkit/events/io.h"
+
+#include <algorithm>
+#include <array>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+
+#include "evkit/events/error.h"
+#include "formats.h"
+
+namespace evkit {
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr std::array<std::pair<Format, const char*>, 3> kFormatNames = {{
+    {Format::kText, "text"},
+    {Format::kHdf5, "hdf5"},
+    {Format::kRpgFolder, "rpg"},
+}};
+
+std::string lowerExtension(const std::string& path) {
+  std::string ext = fs::path(path).extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  return ext;
+}
+
+std::optional<Format> formatFromExtension(const std::string& path) {
+  const std::string ext = lowerExtension(path);
+  if (ext == ".txt" || ext == ".csv" || ext == ".dat_txt") return Format::kText;
+  if (ext == ".h5" || ext == ".hdf5" || ext == ".hdf" || ext == ".he5") return Format::kHdf5;
+  return std::nullopt;
+}
+
+bool hasHdf5Signature(const std::string& path) {
+  // The superblock signature sits at byte 0, 512, 1024, ... (HDF5 file format spec, §2.1).
+  static constexpr char kSignature[8] = {'\x89', 'H', 'D', 'F', '\r', '\n', '\x1a', '\n'};
+  std::ifstream file(path, std::ios::binary);
+  char head[8];
+  for (std::streamoff offset = 0; offset <= 8192; offset = offset ? offset * 2 : 512) {
+    file.seekg(offset);
+    if (!file.read(head, 8)) return false;
+    if (std::memcmp(head, kSignature, 8) == 0) return true;
+  }
+  return false;
+}
+
+}  // namespace
+
+std::string formatName(Format format) {
+  for (const auto& [f, name] : kFormatNames) {
+    if (f == format) return name;
+  }
+  return "unknown";
+}
+
+Format parseFormat(const std::string& name) {
+  for (const auto& [f, n] : kFormatNames) {
+    if (name == n) return f;
+  }
+  std::string known;
+  for (const auto& [f, n] : kFormatNames) known += std::string(known.empty() ? "" : ", ") + n;
+  throw Error("unknown format '" + name + "' (known: " + known + ")");
+}
+
+Format detectFormat(const std::string& path) {
+  std::error_code ec;
+  if (fs::is_directory(path, ec)) {
+    if (fs::exists(fs::path(path) / "events.txt")) return Format::kRpgFolder;
+    throwInFile(path, "a folder without events.txt (expected an RPG dataset folder)");
+  }
+  if (!fs::exists(path, ec)) throwInFile(path, "no such file");
+  if (!fs::is_regular_file(path, ec)) throwInFile(path, "not a regular file");
+  const bool hdf5 = hasHdf5Signature(path);
+  const std::optional<Format> by_extension = formatFromExtension(path);
+  if (by_extension == Format::kHdf5 && !hdf5) {
+    throwAtByte(path, 0, "no HDF5 signature (truncated, corrupt, or not an HDF5 file)");
+  }
+  if (hdf5) {
+    if (by_extension && *by_extension != Format::kHdf5) {
+      throwAtByte(path, 0, "an HDF5 file named like a " + formatName(*by_extension) +
+                               " file; rename it or pass --format hdf5");
+    }
+    return Format::kHdf5;
+  }
+  if (by_extension) return *by_extension;
+  throwInFile(path, "cannot tell the format from the name '" + fs::path(path).filename().string() +
+                        "' (known: .txt .csv .h5 .hdf5, or an RPG folder); pass --format");
+}
+
+bool EventReader::next(Chunk& chunk, size_t max_events) {
+  chunk.clear();
+  while (!past_window_) {
+    const size_t before = chunk.events.size();
+    const size_t before_frames = chunk.frames.size();
+    if (!readChunk(chunk, max_events - before)) break;
+    // Trim to the window; events are sorted, so past the end means done.
+    EventStore& ev = chunk.events;
+    const auto t_begin = ev.t.begin() + static_cast<std::ptrdiff_t>(before);
+    const size_t first = static_cast<size_t>(std::lower_bound(t_begin, ev.t.end(), window_begin_) - ev.t.begin());
+    const size_t last = static_cast<size_t>(std::lower_bound(t_begin, ev.t.end(), window_end_) - ev.t.begin());
+    if (last < ev.size()) past_window_ = true;
+    if (first > before || last < ev.size()) {
+      const auto erase_range = [&](auto& column) {
+        column.erase(column.begin() + static_cast<std::ptrdiff_t>(last), column.end());
+        column.erase(column.begin() + static_cast<std::ptrdiff_t>(before),
+                     column.begin() + static_cast<std::ptrdiff_t>(first));
+      };
+      erase_range(ev.t);
+      erase_range(ev.x);
+      erase_range(ev.y);
+      erase_range(ev.p);
+    }
+    const auto outside = [&](const Frame& f) {
+      return f.exposure_start_us < window_begin_ || f.exposure_start_us >= window_end_;
+    };
+    chunk.frames.erase(std::remove_if(chunk.frames.begin() + static_cast<std::ptrdiff_t>(before_frames),
+                                      chunk.frames.end(), outside),
+                       chunk.frames.end());
+    if (!chunk.events.empty() || !chunk.frames.empty()) return true;
+  }
+  return !chunk.events.empty() || !chunk.frames.empty();
+}
+
+void EventReader::setTimeWindow(int64_t t_begin, int64_t t_end) {
+  window_begin_ = t_begin;
+  window_end_ = t_end;
+  past_window_ = t_end <= t_begin;
+  if (t_begin != std::numeric_limits<int64_t>::min()) seek(t_begin);
+}
+
+std::unique_ptr<EventReader> openReader(const std::string& path, std::optional<Format> format) {
+  const Format f = format ? *format : detectFormat(path);
+  switch (f) {
+    case Format::kText:
+      return detail::openTextReader(path);
+    case Format::kHdf5:
+      return detail::openHdf5Reader(path);
+    case Format::kRpgFolder:
+      return detail::openRpgFolderReader(path);
+  }
+  throwInFile(path, "no reader for format " + formatName(f));
+}
+
+std::string compressionName(Compression compression) {
+  switch (compression) {
+    case Compression::kNone:
+      return "none";
+    case Compression::kDeflate:
+      return "deflate";
+    case Compression::kBloscLz4:
+      return "blosc-lz4";
+  }
+  return "unknown";
+}
+
+Compression parseCompression(const std::string& name) {
+  for (Compression c : {Compression::kNone, Compression::kDeflate, Compression::kBloscLz4}) {
+    if (compressionName(c) == name) return c;
+  }
+  throw Error("unknown compression '" + name + "' (known: none, deflate, blosc-lz4)");
+}
+
+std::unique_ptr<EventWriter> openWriter(const std::string& path, Format format, SensorSize sensor,
+                                        const WriterOptions& options) {
+  switch (format) {
+    case Format::kText:
+      return detail::openTextWriter(path, sensor);
+    case Format::kHdf5:
+      return detail::openHdf5Writer(path, sensor, options);
+    case Format::kRpgFolder:
+      break;
+  }
+  throwInFile(path, "format " + formatName(format) + " can be read but not written");
+}
+
+Format outputFormat(const std::string& path) {
+  if (const auto f = formatFromExtension(path)) return *f;
+  throwInFile(path, "cannot tell the output format from the extension (known: .txt .h5); pass --format");
+}
+
+Recording readRecording(const std::string& path, std::optional<Format> format, int64_t t_begin,
+                        int64_t t_end) {
+  auto reader = openReader(path, format);
+  reader->setTimeWindow(t_begin, t_end);
+  Recording rec;
+  rec.info = reader->info();
+  if (rec.info.event_count) rec.events.reserve(static_cast<size_t>(*rec.info.event_count));
+  Chunk chunk;
+  while (reader->next(chunk, size_t{1} << 22)) {
+    rec.events.append(chunk.events.view());
+    for (Frame& f : chunk.frames) rec.frames.push_back(std::move(f));
+  }
+  SensorSize sensor = rec.info.sensor;
+  if (!sensor.known()) {
+    sensor = boundingSensor(rec.events.view());
+    for (const Frame& f : rec.frames) {
+      sensor.width = std::max(sensor.width, f.image.cols);
+      sensor.height = std::max(sensor.height, f.image.rows);
+    }
+  }
+  rec.events.setSensor(sensor);
+  rec.info.sensor = sensor;
+  return rec;
+}
+
+void writeRecording(const std::string& path, const Recording& recording, std::optional<Format> format,
+                    const WriterOptions& options) {
+  auto writer = openWriter(path, format ? *format : outputFormat(path), recording.events.sensor(), options);
+  writer->write(recording.events.view());
+  for (const Frame& f : recording.frames) writer->writeFrame(f);
+  writer->close();
+}
+
+}  // namespace evkit
