@@ -1,0 +1,24 @@
+#!/usr/bin/env bash
+# The README's second command (and all that CI runs): install what is missing, build, run the whole
+# test suite; then the same suite under AddressSanitizer + UndefinedBehaviorSanitizer.
+# EVKIT_SKIP_SANITIZE=1 skips the sanitizer pass (quicker local runs).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+jobs=$(nproc)
+bash scripts/install-deps.sh
+
+echo "== Release build and tests"
+cmake -S . -B build-test -G Ninja -DCMAKE_BUILD_TYPE=Release -DEVKIT_BUILD_TESTS=ON \
+  -DEVKIT_BUILD_BENCHMARKS=OFF -DEVKIT_WERROR=ON
+cmake --build build-test -j "$jobs"
+ctest --test-dir build-test --output-on-failure -j "$jobs"
+
+if [ "${EVKIT_SKIP_SANITIZE:-0}" != "1" ]; then
+  echo "== AddressSanitizer + UBSan build and tests"
+  cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DEVKIT_BUILD_TESTS=ON \
+    -DEVKIT_BUILD_BENCHMARKS=OFF -DEVKIT_SANITIZE=ON -DEVKIT_WERROR=ON
+  cmake --build build-asan -j "$jobs"
+  ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
+    ctest --test-dir build-asan --output-on-failure -j "$jobs"
+fi

@@ -1,0 +1,160 @@
+// End-to-end tests of the evkit binary on small generated files.
+
+#include <gtest/gtest.h>
+
+#include "evkit/events/io.h"
+#include "evkit/events/npy.h"
+#include "evkit/events/random_events.h"
+#include "test_util.h"
+
+namespace evkit {
+namespace {
+
+using test::runEvkit;
+using test::RunResult;
+using test::ScratchDir;
+
+int lineCount(const std::string& s) { return static_cast<int>(std::count(s.begin(), s.end(), '\n')); }
+
+std::string makeRecording(const ScratchDir& dir, const std::string& name, size_t count = 20000) {
+  RandomEventOptions o;
+  o.count = count;
+  o.t_start_us = 1605537493718345;
+  Recording rec;
+  rec.events = randomEvents(o);
+  writeRecording(dir / name, rec);
+  return dir / name;
+}
+
+TEST(Cli, HelpVersionAndUnknownCommand) {
+  ScratchDir dir;
+  RunResult r = runEvkit("--help", dir);
+  EXPECT_EQ(r.exit_code, 0);
+  EXPECT_NE(r.out.find("accumulate"), std::string::npos);
+  EXPECT_NE(r.out.find("exit codes"), std::string::npos);
+  for (const char* cmd : {"info", "convert", "accumulate", "demo"}) {
+    r = runEvkit(std::string(cmd) + " --help", dir);
+    EXPECT_EQ(r.exit_code, 0) << cmd;
+    EXPECT_NE(r.out.find("usage: evkit " + std::string(cmd)), std::string::npos) << cmd;
+  }
+  r = runEvkit("frobnicate", dir);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_EQ(lineCount(r.err), 1);
+}
+
+TEST(Cli, InfoReportsCountsSpanAndRate) {
+  ScratchDir dir;
+  const std::string txt = makeRecording(dir, "a.txt");
+  const Recording rec = readRecording(txt);
+  const RunResult r = runEvkit("info " + txt, dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("format:      text (rpg-text layout)"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("sensor:      346 x 260"), std::string::npos);
+  const int64_t on = rec.events.countOn();
+  const std::string on_text = std::to_string(on / 1000) + "," + std::to_string(on % 1000 + 1000).substr(1);
+  EXPECT_NE(r.out.find("events:      20,000 (ON " + on_text + ", OFF "), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("first:       1605537493718345 us"), std::string::npos) << r.out;
+}
+
+TEST(Cli, ConvertRoundTripAndRelativeWindow) {
+  ScratchDir dir;
+  const std::string txt = makeRecording(dir, "a.txt");
+  RunResult r = runEvkit("convert " + txt + " " + (dir / "b.h5") + " --compression blosc-lz4", dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  r = runEvkit("convert " + (dir / "b.h5") + " " + (dir / "c.txt"), dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(test::readText(txt), test::readText(dir / "c.txt"));
+
+  r = runEvkit("convert " + (dir / "b.h5") + " " + (dir / "w.txt") + " --start +1ms --end +5ms", dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const Recording all = readRecording(txt), part = readRecording(dir / "w.txt");
+  const int64_t t0 = all.events.t.front();
+  const EventSpan expected = all.events.sliceTime(t0 + 1000, t0 + 5000);
+  ASSERT_EQ(part.events.size(), expected.size());
+  EXPECT_EQ(part.events.t.front(), expected.t.front());
+  EXPECT_EQ(part.events.t.back(), expected.t.back());
+  // Absolute form of the same window.
+  r = runEvkit("convert " + txt + " " + (dir / "w2.txt") + " --start " + std::to_string(t0 + 1000) +
+                   " --end " + std::to_string(t0 + 5000),
+               dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(test::readText(dir / "w.txt"), test::readText(dir / "w2.txt"));
+}
+
+TEST(Cli, AccumulateWritesPngNpyAndWindowTable) {
+  ScratchDir dir;
+  const std::string h5 = makeRecording(dir, "a.h5");
+  RunResult r = runEvkit("accumulate " + h5 + " --repr voxel --bins 3 --window 5ms --out " + (dir / "vox"), dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const std::string csv = test::readText(dir / "vox/windows.csv");
+  const int windows = lineCount(csv) - 1;
+  const Recording rec = readRecording(h5);
+  EXPECT_EQ(windows, (rec.events.t.back() - rec.events.t.front()) / 5000 + 1);
+  EXPECT_TRUE(test::fs::exists(dir / "vox/000000.png"));
+  const NpyArray v = readNpy(dir / "vox/000000.npy");
+  EXPECT_EQ(v.shape, (std::vector<size_t>{3, 260, 346}));
+
+  r = runEvkit("accumulate " + h5 + " --repr counts --count 6000 --out " + (dir / "cnt"), dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(lineCount(test::readText(dir / "cnt/windows.csv")), 1 + 4);  // 6000, 6000, 6000, 2000
+  const NpyArray c = readNpy(dir / "cnt/000003.npy");
+  double total = 0;
+  for (float x : c.data) total += x;
+  EXPECT_DOUBLE_EQ(total, 2000.0);
+
+  for (const char* repr : {"frame", "normalized", "timesurface"}) {
+    r = runEvkit("accumulate " + h5 + " --repr " + repr + " --window 20ms --out " + (dir / repr), dir);
+    EXPECT_EQ(r.exit_code, 0) << repr << ": " << r.err;
+    EXPECT_TRUE(test::fs::exists(dir / (std::string(repr) + "/000000.npy"))) << repr;
+  }
+}
+
+TEST(Cli, BadInputGivesOneLineNonZeroExitAndNoPartialOutput) {
+  ScratchDir dir;
+  // Valid for the first 300k lines (more than one chunk gets written), then broken.
+  std::string text = makeRecording(dir, "good.txt", 300000);
+  std::string content = test::readText(text) + "1605537499.000000 1 2 7\n";
+  test::writeText(dir / "bad.txt", content);
+  for (const std::string out : {"out.h5", "out.txt"}) {
+    const RunResult r = runEvkit("convert " + (dir / "bad.txt") + " " + (dir / out), dir);
+    EXPECT_EQ(r.exit_code, 1);
+    EXPECT_EQ(lineCount(r.err), 1) << r.err;
+    EXPECT_NE(r.err.find("bad.txt: line 300002: expected 't x y p'; cannot read polarity"), std::string::npos) << r.err;
+    EXPECT_FALSE(test::fs::exists(dir / out));
+  }
+  const RunResult acc = runEvkit("accumulate " + (dir / "bad.txt") + " --out " + (dir / "acc"), dir);
+  EXPECT_EQ(acc.exit_code, 1);
+  EXPECT_FALSE(test::fs::exists(dir / "acc"));
+  EXPECT_EQ(test::countTemporaries(dir.path()), 0);
+
+  const RunResult missing = runEvkit("info " + (dir / "nothing.h5"), dir);
+  EXPECT_EQ(missing.exit_code, 1);
+  EXPECT_EQ(missing.err, "evkit info: " + (dir / "nothing.h5") + ": no such file\n");
+}
+
+TEST(Cli, BadOptionsExitWithTwo) {
+  ScratchDir dir;
+  const std::string txt = makeRecording(dir, "a.txt", 100);
+  for (const std::string& args : std::vector<std::string>{"convert " + txt, "convert " + txt + " b.h5 --compression zip",
+                                 "accumulate " + txt + " --out x --repr nope",
+                                 "accumulate " + txt + " --out x --window 5 parsecs", "info " + txt + " --format xyz",
+                                 "accumulate " + txt + " --out x --window 1ms --count 5", std::string("info")}) {
+    const RunResult r = runEvkit(args, dir);
+    EXPECT_EQ(r.exit_code, 2) << args << ": " << r.err;
+    EXPECT_EQ(lineCount(r.err), 1) << args << ": " << r.err;
+  }
+}
+
+TEST(Cli, DemoRunsTheDefaultJob) {
+  ScratchDir dir;
+  const RunResult r = runEvkit("demo --events 30000 --out " + (dir / "demo"), dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("round trip exact"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("events:      30,000"), std::string::npos) << r.out;
+  for (const char* f : {"random.txt", "random.h5", "roundtrip.txt", "accumulated.png"}) {
+    EXPECT_TRUE(test::fs::exists(dir / (std::string("demo/") + f))) << f;
+  }
+}
+
+}  // namespace
+}  // namespace evkit

@@ -1,0 +1,151 @@
+#include "evkit/events/accumulate.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "evkit/events/npy.h"
+#include "evkit/events/random_events.h"
+#include "test_util.h"
+
+namespace evkit {
+namespace {
+
+constexpr float kTol = 1e-6f;
+
+// 3x2 sensor: (0,0) gets ON, ON, OFF; (2,1) gets OFF; (1,0) gets ON.
+EventStore handStore() {
+  EventStore s(SensorSize{3, 2});
+  s.push_back(100, 0, 0, 1);
+  s.push_back(200, 0, 0, 1);
+  s.push_back(300, 2, 1, -1);
+  s.push_back(400, 0, 0, -1);
+  s.push_back(500, 1, 0, 1);
+  return s;
+}
+
+TEST(Accumulate, SignedFrameWithAndWithoutContrast) {
+  const cv::Mat f = accumulateSigned(handStore().view());
+  ASSERT_EQ(f.rows, 2);
+  ASSERT_EQ(f.cols, 3);
+  EXPECT_FLOAT_EQ(f.at<float>(0, 0), 1.0f);
+  EXPECT_FLOAT_EQ(f.at<float>(0, 1), 1.0f);
+  EXPECT_FLOAT_EQ(f.at<float>(1, 2), -1.0f);
+  EXPECT_FLOAT_EQ(f.at<float>(1, 0), 0.0f);
+  const cv::Mat c = accumulateSigned(handStore().view(), 0.2f, 0.3f);
+  EXPECT_NEAR(c.at<float>(0, 0), 0.2f + 0.2f - 0.3f, kTol);
+  EXPECT_NEAR(c.at<float>(1, 2), -0.3f, kTol);
+}
+
+TEST(Accumulate, CountsPerPolarity) {
+  const PolarityCounts c = accumulateCounts(handStore().view());
+  EXPECT_FLOAT_EQ(c.on.at<float>(0, 0), 2.0f);
+  EXPECT_FLOAT_EQ(c.off.at<float>(0, 0), 1.0f);
+  EXPECT_FLOAT_EQ(c.off.at<float>(1, 2), 1.0f);
+  EXPECT_FLOAT_EQ(cv::sum(c.on)[0] + cv::sum(c.off)[0], 5.0f);
+}
+
+TEST(Accumulate, NormalizedHasUnitNormAndEmptyWindowGivesZeros) {
+  const cv::Mat n = accumulateNormalized(handStore().view());
+  // Signed values 1, 1, -1 -> norm sqrt(3).
+  EXPECT_NEAR(n.at<float>(0, 0), 1.0f / std::sqrt(3.0f), kTol);
+  EXPECT_NEAR(cv::norm(n), 1.0, 1e-6);
+  const EventStore s = handStore();
+  const cv::Mat empty = accumulateNormalized(s.sliceTime(1000, 2000));
+  EXPECT_EQ(cv::countNonZero(empty), 0);
+  EXPECT_TRUE(cv::checkRange(empty));
+  // Events that cancel everywhere: norm 0, zeros, no NaN.
+  const cv::Mat cancel = accumulateNormalized(s.view().subspan(0, 0));
+  EXPECT_TRUE(cv::checkRange(cancel));
+  EventStore zero(SensorSize{2, 2});
+  zero.push_back(1, 1, 1, 1);
+  zero.push_back(2, 1, 1, -1);
+  const cv::Mat z = accumulateNormalized(zero.view());
+  EXPECT_TRUE(cv::checkRange(z));
+  EXPECT_EQ(cv::countNonZero(z), 0);
+}
+
+TEST(Accumulate, TimeSurfaceDecaysFromTheLatestEvent) {
+  const TimeSurface ts = timeSurface(handStore().view(), 500, 100.0);
+  EXPECT_NEAR(ts.on.at<float>(0, 0), std::exp(-(500.0 - 200.0) / 100.0), kTol);
+  EXPECT_NEAR(ts.off.at<float>(0, 0), std::exp(-(500.0 - 400.0) / 100.0), kTol);
+  EXPECT_NEAR(ts.on.at<float>(0, 1), 1.0f, kTol);
+  EXPECT_FLOAT_EQ(ts.on.at<float>(1, 1), 0.0f);
+  // Events after t_ref are ignored.
+  const TimeSurface early = timeSurface(handStore().view(), 250, 100.0);
+  EXPECT_FLOAT_EQ(early.off.at<float>(1, 2), 0.0f);
+  EXPECT_NEAR(early.on.at<float>(0, 0), std::exp(-0.5), kTol);
+}
+
+TEST(Accumulate, VoxelGridSplitsEventsBilinearlyBetweenBins) {
+  EventStore s(SensorSize{2, 1});
+  s.push_back(0, 0, 0, 1);     // t* = 0 -> bin 0
+  s.push_back(250, 1, 0, -1);  // t* = 0.75 (B = 4, t1 = 1000) -> 0.25 in bin 0, 0.75 in bin 1
+  s.push_back(1000, 1, 0, 1);  // t* = 3 -> bin 3
+  const std::vector<cv::Mat> v = voxelGrid(s.view(), 4, 0, 1000);
+  ASSERT_EQ(v.size(), 4u);
+  EXPECT_NEAR(v[0].at<float>(0, 0), 1.0f, kTol);
+  EXPECT_NEAR(v[0].at<float>(0, 1), -0.25f, kTol);
+  EXPECT_NEAR(v[1].at<float>(0, 1), -0.75f, kTol);
+  EXPECT_NEAR(v[3].at<float>(0, 1), 1.0f, kTol);
+  EXPECT_NEAR(v[2].at<float>(0, 1), 0.0f, kTol);
+  // Each event's weights sum to its polarity: the bins sum to the signed frame.
+  RandomEventOptions o;
+  o.count = 20000;
+  const EventStore r = randomEvents(o);
+  const std::vector<cv::Mat> g = voxelGrid(r.view(), 7, r.t.front(), r.t.back());
+  cv::Mat total = cv::Mat::zeros(g[0].size(), CV_32F);
+  for (const cv::Mat& b : g) total += b;
+  EXPECT_LT(cv::norm(total - accumulateSigned(r.view()), cv::NORM_INF), 1e-3);
+  // A zero-length window puts everything in bin 0.
+  const std::vector<cv::Mat> flat = voxelGrid(s.view(), 3, 0, 0);
+  EXPECT_NEAR(flat[0].at<float>(0, 1), 0.0f, kTol);  // -1 + 1
+  EXPECT_NEAR(cv::norm(flat[1]) + cv::norm(flat[2]), 0.0, 1e-9);
+}
+
+TEST(Accumulate, WindowsByTimeAndByCountCoverEveryEventOnce) {
+  RandomEventOptions o;
+  o.count = 10000;
+  const EventStore r = randomEvents(o);
+  const auto by_time = windowsByTime(r.view(), 1000);
+  size_t covered = 0, prev_end = 0;
+  for (size_t k = 0; k < by_time.size(); ++k) {
+    const auto [b, e] = by_time[k];
+    EXPECT_EQ(b, prev_end);
+    for (size_t i = b; i < e; ++i) {
+      EXPECT_GE(r.t[i], r.t.front() + 1000 * static_cast<int64_t>(k));
+      EXPECT_LT(r.t[i], r.t.front() + 1000 * static_cast<int64_t>(k + 1));
+    }
+    covered += e - b;
+    prev_end = e;
+  }
+  EXPECT_EQ(covered, r.size());
+  const auto by_count = windowsByCount(r.view(), 3000);
+  ASSERT_EQ(by_count.size(), 4u);
+  EXPECT_EQ(by_count[3], (std::pair<size_t, size_t>{9000, 10000}));
+}
+
+TEST(Accumulate, PolarityRenderingIsRedOnBlueOffWhiteEmpty) {
+  const cv::Mat png = renderPolarity(accumulateSigned(handStore().view()), 1.0f);
+  ASSERT_EQ(png.type(), CV_8UC3);
+  EXPECT_EQ(png.at<cv::Vec3b>(0, 1), cv::Vec3b(0, 0, 255));    // ON: red (BGR)
+  EXPECT_EQ(png.at<cv::Vec3b>(1, 2), cv::Vec3b(255, 0, 0));    // OFF: blue
+  EXPECT_EQ(png.at<cv::Vec3b>(1, 0), cv::Vec3b(255, 255, 255));  // no events: white
+  const cv::Mat cm = renderColormap(timeSurface(handStore().view(), 500, 100.0).on);
+  EXPECT_EQ(cm.type(), CV_8UC3);
+}
+
+TEST(Npy, RoundTripAndHeaderAlignment) {
+  test::ScratchDir dir;
+  const std::vector<float> data = {1.5f, -2.0f, 3.25f, 0.0f, 7.0f, 8.0f};
+  writeNpy(dir / "a.npy", data.data(), {2, 3});
+  const std::string bytes = test::readText(dir / "a.npy");
+  EXPECT_EQ(bytes.substr(0, 6), "\x93NUMPY");
+  EXPECT_EQ((bytes.size() - data.size() * 4) % 64, 0u);  // data starts 64-byte aligned
+  const NpyArray back = readNpy(dir / "a.npy");
+  EXPECT_EQ(back.shape, (std::vector<size_t>{2, 3}));
+  EXPECT_EQ(back.data, data);
+}
+
+}  // namespace
+}  // namespace evkit

@@ -1,0 +1,252 @@
+#include <hdf5.h>
+
+#include <gtest/gtest.h>
+
+#include "evkit/events/error.h"
+#include "evkit/events/io.h"
+#include "evkit/events/random_events.h"
+#include "test_util.h"
+
+namespace evkit {
+namespace {
+
+using test::ScratchDir;
+
+void expectSameEvents(const EventStore& a, const EventStore& b) {
+  ASSERT_EQ(a.size(), b.size());
+  EXPECT_TRUE(a.t == b.t);
+  EXPECT_TRUE(a.x == b.x);
+  EXPECT_TRUE(a.y == b.y);
+  EXPECT_TRUE(a.p == b.p);
+}
+
+// The acceptance test of the foundation: a million events with absolute Unix-µs timestamps survive
+// text -> HDF5 -> text exactly (values and bytes).
+TEST(Hdf5Io, TextToHdf5ToTextIsLosslessOnAMillionUnixTimeEvents) {
+  ScratchDir dir;
+  RandomEventOptions o;
+  o.count = 1'000'000;
+  o.t_start_us = 1605537493718345;
+  o.rate_hz = 3e6;
+  Recording rec;
+  rec.events = randomEvents(o);
+  writeRecording(dir / "a.txt", rec);
+  const Recording from_text = readRecording(dir / "a.txt");
+  expectSameEvents(from_text.events, rec.events);
+  writeRecording(dir / "b.h5", from_text);
+  const Recording from_h5 = readRecording(dir / "b.h5");
+  EXPECT_EQ(from_h5.info.layout, "evkit");
+  EXPECT_EQ(from_h5.info.sensor, (SensorSize{346, 260}));
+  ASSERT_TRUE(from_h5.info.event_count.has_value());
+  EXPECT_EQ(*from_h5.info.event_count, 1'000'000);
+  expectSameEvents(from_h5.events, rec.events);
+  writeRecording(dir / "c.txt", from_h5);
+  EXPECT_EQ(test::readText(dir / "a.txt"), test::readText(dir / "c.txt"));
+}
+
+TEST(Hdf5Io, EveryCompressionRoundTrips) {
+  ScratchDir dir;
+  RandomEventOptions o;
+  o.count = 300'000;
+  Recording rec;
+  rec.events = randomEvents(o);
+  for (Compression c : {Compression::kNone, Compression::kDeflate, Compression::kBloscLz4}) {
+    WriterOptions w;
+    w.compression = c;
+    const std::string path = dir / ("c_" + compressionName(c) + ".h5");
+    writeRecording(path, rec, std::nullopt, w);
+    expectSameEvents(readRecording(path).events, rec.events);
+  }
+}
+
+TEST(Hdf5Io, TimeSliceUsesTheMillisecondIndexAndMatchesBinarySearch) {
+  ScratchDir dir;
+  RandomEventOptions o;
+  o.count = 500'000;
+  o.t_start_us = 1605537493718345;
+  Recording rec;
+  rec.events = randomEvents(o);
+  writeRecording(dir / "s.h5", rec);
+  for (const auto& [a, b] : std::vector<std::pair<int64_t, int64_t>>{
+           {0, 1}, {1234, 5678}, {100000, 100001}, {0, 600000}, {499000, 499500}}) {
+    const int64_t t0 = o.t_start_us + a, t1 = o.t_start_us + b;
+    const Recording part = readRecording(dir / "s.h5", std::nullopt, t0, t1);
+    const EventSpan expected = rec.events.sliceTime(t0, t1);
+    ASSERT_EQ(part.events.size(), expected.size()) << a << ".." << b;
+    if (!expected.empty()) {
+      EXPECT_EQ(part.events.t.front(), expected.t.front());
+      EXPECT_EQ(part.events.t.back(), expected.t.back());
+    }
+  }
+}
+
+TEST(Hdf5Io, FramesRoundTripWithExposureAndBitDepth) {
+  ScratchDir dir;
+  for (int channels : {1, 3}) {
+    for (int bits : {8, 16}) {
+      Recording rec;
+      rec.events.setSensor(SensorSize{5, 4});
+      rec.events.push_back(1605537493000000, 1, 2, 1);
+      rec.events.push_back(1605537493100000, 4, 3, -1);
+      for (int i = 0; i < 3; ++i) {
+        Frame f;
+        f.image = cv::Mat(4, 5, CV_32FC(channels), cv::Scalar(0.1 * i, 0.2, 0.7));
+        f.image.at<float>(1, 2 * channels) = 1.0f;
+        f.exposure_start_us = 1605537493000000 + 40000 * i;
+        f.exposure_end_us = f.exposure_start_us + 10000 + i;
+        f.bit_depth = bits;
+        rec.frames.push_back(f);
+      }
+      const std::string path = dir / ("f" + std::to_string(channels) + "_" + std::to_string(bits) + ".h5");
+      writeRecording(path, rec);
+      const Recording back = readRecording(path);
+      ASSERT_EQ(back.frames.size(), 3u);
+      for (int i = 0; i < 3; ++i) {
+        const Frame& f = back.frames[static_cast<size_t>(i)];
+        EXPECT_EQ(f.exposure_start_us, rec.frames[static_cast<size_t>(i)].exposure_start_us);
+        EXPECT_EQ(f.exposure_end_us, rec.frames[static_cast<size_t>(i)].exposure_end_us);
+        EXPECT_EQ(f.bit_depth, bits);
+        ASSERT_EQ(f.image.type(), CV_32FC(channels));
+        cv::Mat diff;
+        cv::absdiff(f.image, rec.frames[static_cast<size_t>(i)].image, diff);
+        double max_diff;
+        cv::minMaxLoc(diff.reshape(1), nullptr, &max_diff);
+        EXPECT_LE(max_diff, bits == 8 ? 0.5 / 255 + 1e-6 : 0.5 / 65535 + 1e-6);
+      }
+    }
+  }
+}
+
+// Writes a DSEC-style file: events/{t uint32 relative, x, y uint16, p uint8 0/1}, ms_to_idx, t_offset.
+void writeDsec(const std::string& path, const EventStore& ev, int64_t t_offset) {
+  const hid_t f = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+  const hid_t g = H5Gcreate2(f, "events", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  const hsize_t n = ev.size();
+  std::vector<uint32_t> t(n);
+  std::vector<uint8_t> p(n);
+  for (size_t i = 0; i < n; ++i) {
+    t[i] = static_cast<uint32_t>(ev.t[i] - t_offset);
+    p[i] = ev.p[i] > 0 ? 1 : 0;
+  }
+  const auto put = [&](hid_t loc, const char* name, hid_t file_type, hid_t mem_type, const void* data, hsize_t count) {
+    const hid_t space = H5Screate_simple(1, &count, nullptr);
+    const hid_t dcpl = H5Pcreate(H5P_DATASET_CREATE);
+    if (count > 0) {
+      const hsize_t chunk = std::min<hsize_t>(count, 4096);
+      H5Pset_chunk(dcpl, 1, &chunk);
+      H5Pset_deflate(dcpl, 4);
+    }
+    const hid_t ds = H5Dcreate2(loc, name, file_type, space, H5P_DEFAULT, dcpl, H5P_DEFAULT);
+    H5Dwrite(ds, mem_type, H5S_ALL, H5S_ALL, H5P_DEFAULT, data);
+    H5Dclose(ds);
+    H5Pclose(dcpl);
+    H5Sclose(space);
+  };
+  put(g, "t", H5T_STD_U32LE, H5T_NATIVE_UINT32, t.data(), n);
+  put(g, "x", H5T_STD_U16LE, H5T_NATIVE_UINT16, ev.x.data(), n);
+  put(g, "y", H5T_STD_U16LE, H5T_NATIVE_UINT16, ev.y.data(), n);
+  put(g, "p", H5T_STD_U8LE, H5T_NATIVE_UINT8, p.data(), n);
+  std::vector<uint64_t> ms_to_idx;
+  for (size_t i = 0; i < n; ++i) {
+    while (static_cast<int64_t>(ms_to_idx.size()) * 1000 <= t[i]) ms_to_idx.push_back(i);
+  }
+  put(f, "ms_to_idx", H5T_STD_U64LE, H5T_NATIVE_UINT64, ms_to_idx.data(), ms_to_idx.size());
+  const hid_t scalar = H5Screate(H5S_SCALAR);
+  const hid_t ds = H5Dcreate2(f, "t_offset", H5T_STD_I64LE, scalar, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  H5Dwrite(ds, H5T_NATIVE_INT64, H5S_ALL, H5S_ALL, H5P_DEFAULT, &t_offset);
+  H5Dclose(ds);
+  H5Sclose(scalar);
+  H5Gclose(g);
+  H5Fclose(f);
+}
+
+TEST(Hdf5Io, ReadsTheDsecLayout) {
+  ScratchDir dir;
+  RandomEventOptions o;
+  o.count = 200'000;
+  o.sensor = SensorSize{640, 480};
+  o.t_start_us = 1629383921000000 + 37;  // DSEC-like: t_offset is the absolute start
+  const EventStore ev = randomEvents(o);
+  writeDsec(dir / "dsec.h5", ev, o.t_start_us - 37);
+  const Recording rec = readRecording(dir / "dsec.h5");
+  EXPECT_EQ(rec.info.layout, "dsec");
+  EXPECT_EQ(rec.info.sensor, boundingSensor(ev.view()));  // DSEC states no size
+  expectSameEvents(rec.events, ev);
+  // The millisecond index gives the same window as a binary search.
+  const int64_t t0 = ev.t[50000], t1 = ev.t[120000];
+  const Recording part = readRecording(dir / "dsec.h5", std::nullopt, t0, t1);
+  EXPECT_EQ(part.events.size(), ev.sliceTime(t0, t1).size());
+  EXPECT_EQ(part.events.t.front(), t0);
+}
+
+TEST(Hdf5Io, ReadsTheEventUtilsLayoutWithImages) {
+  ScratchDir dir;
+  const std::string path = dir / "eu.h5";
+  const hid_t f = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+  const hid_t g = H5Gcreate2(f, "events", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  const std::vector<double> ts = {0.5, 0.500001, 0.75, 1.25};
+  const std::vector<uint16_t> xs = {1, 2, 3, 4}, ys = {4, 3, 2, 1};
+  const std::vector<uint8_t> ps = {1, 0, 0, 1};
+  const hsize_t n = 4;
+  const hid_t space = H5Screate_simple(1, &n, nullptr);
+  const auto put = [&](const char* name, hid_t ft, hid_t mt, const void* d) {
+    const hid_t ds = H5Dcreate2(g, name, ft, space, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+    H5Dwrite(ds, mt, H5S_ALL, H5S_ALL, H5P_DEFAULT, d);
+    H5Dclose(ds);
+  };
+  put("ts", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, ts.data());
+  put("xs", H5T_STD_U16LE, H5T_NATIVE_UINT16, xs.data());
+  put("ys", H5T_STD_U16LE, H5T_NATIVE_UINT16, ys.data());
+  put("ps", H5T_STD_U8LE, H5T_NATIVE_UINT8, ps.data());
+  const hsize_t res_n = 2;
+  const hid_t res_space = H5Screate_simple(1, &res_n, nullptr);
+  const int64_t res[2] = {6, 8};  // (height, width)
+  const hid_t attr = H5Acreate2(f, "sensor_resolution", H5T_STD_I64LE, res_space, H5P_DEFAULT, H5P_DEFAULT);
+  H5Awrite(attr, H5T_NATIVE_INT64, res);
+  H5Aclose(attr);
+  const hid_t images = H5Gcreate2(f, "images", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  const hsize_t dims[2] = {6, 8};
+  const hid_t img_space = H5Screate_simple(2, dims, nullptr);
+  std::vector<uint8_t> pixels(48, 51);
+  const hid_t img = H5Dcreate2(images, "image000000000", H5T_STD_U8LE, img_space, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  H5Dwrite(img, H5T_NATIVE_UINT8, H5S_ALL, H5S_ALL, H5P_DEFAULT, pixels.data());
+  const hid_t scalar = H5Screate(H5S_SCALAR);
+  const double stamp = 0.6;
+  const hid_t ta = H5Acreate2(img, "timestamp", H5T_IEEE_F64LE, scalar, H5P_DEFAULT, H5P_DEFAULT);
+  H5Awrite(ta, H5T_NATIVE_DOUBLE, &stamp);
+  H5Aclose(ta);
+  H5Dclose(img);
+  H5Sclose(scalar);
+  H5Sclose(img_space);
+  H5Gclose(images);
+  H5Sclose(res_space);
+  H5Sclose(space);
+  H5Gclose(g);
+  H5Fclose(f);
+
+  const Recording rec = readRecording(path);
+  EXPECT_EQ(rec.info.layout, "event_utils");
+  EXPECT_EQ(rec.info.sensor, (SensorSize{8, 6}));
+  EXPECT_EQ(rec.events.t, (std::vector<int64_t>{500000, 500001, 750000, 1250000}));
+  EXPECT_EQ(rec.events.p, (std::vector<int8_t>{1, -1, -1, 1}));
+  EXPECT_EQ(rec.events.x, xs);
+  ASSERT_EQ(rec.frames.size(), 1u);
+  EXPECT_EQ(rec.frames[0].exposure_start_us, 600000);
+  EXPECT_NEAR(rec.frames[0].image.at<float>(5, 7), 0.2f, 1e-6);
+}
+
+TEST(Hdf5Io, WriterLeavesNothingWhenAbandonedAndRejectsUnsortedEvents) {
+  ScratchDir dir;
+  {
+    auto w = openWriter(dir / "x.h5", Format::kHdf5, SensorSize{10, 10});
+    EventStore ev(SensorSize{10, 10});
+    ev.push_back(5, 1, 1, 1);
+    ev.push_back(4, 1, 1, 1);
+    EXPECT_THROW(w->write(ev.view()), Error);
+  }
+  EXPECT_FALSE(test::fs::exists(dir / "x.h5"));
+  EXPECT_EQ(test::countTemporaries(dir.path()), 0);
+}
+
+}  // namespace
+}  // namespace evkit
