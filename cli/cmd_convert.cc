@@ -56,7 +56,9 @@ int runConvert(const Args& args) {
       "out-format", po::value<std::string>(), "output format (text, hdf5); default: from the name")(
       "start", po::value<std::string>(), "keep events from this time: µs, 1.5s, or +10ms from the first event")(
       "end", po::value<std::string>(), "keep events before this time (same forms as --start)")(
-      "compression", po::value<std::string>()->default_value("deflate"), "HDF5: deflate, blosc-lz4 or none")(
+      "compression", po::value<std::string>()->default_value("auto"),
+      "HDF5: blosc-lz4 (fast; needs the Blosc plugin to read), deflate (readable everywhere), none; "
+      "auto = blosc-lz4 when the plugin is installed")(
       "level", po::value<int>()->default_value(1), "HDF5 compression level 0-9");
   po::positional_options_description pos;
   pos.add("input", 1).add("output", 1);
@@ -66,7 +68,8 @@ int runConvert(const Args& args) {
   }
   WriterOptions options;
   try {
-    options.compression = parseCompression(vm["compression"].as<std::string>());
+    const std::string compression = vm["compression"].as<std::string>();
+    if (compression != "auto") options.compression = parseCompression(compression);
   } catch (const Error& e) {
     throw UsageError(std::string("--compression: ") + e.what());
   }

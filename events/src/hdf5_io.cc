@@ -345,8 +345,12 @@ class Hdf5Reader final : public EventReader {
 
 // ---- Writer ----------------------------------------------------------------------------------
 
+bool bloscAvailable() { return H5Zfilter_avail(kBloscFilter) > 0; }
+
 void applyCompression(hid_t dcpl, const WriterOptions& options, const std::string& path) {
-  switch (options.compression) {
+  const Compression compression =
+      options.compression ? *options.compression : (bloscAvailable() ? Compression::kBloscLz4 : Compression::kDeflate);
+  switch (compression) {
     case Compression::kNone:
       break;
     case Compression::kDeflate:
@@ -354,7 +358,7 @@ void applyCompression(hid_t dcpl, const WriterOptions& options, const std::strin
       H5Pset_deflate(dcpl, static_cast<unsigned>(std::clamp(options.level, 0, 9)));
       break;
     case Compression::kBloscLz4: {
-      if (H5Zfilter_avail(kBloscFilter) <= 0) {
+      if (!bloscAvailable()) {
         throwInFile(path, "the Blosc HDF5 filter plugin is not installed (Debian: hdf5-filter-plugin); "
                           "use --compression deflate");
       }
@@ -366,6 +370,10 @@ void applyCompression(hid_t dcpl, const WriterOptions& options, const std::strin
   }
 }
 
+// Frames, exposure times and the time index always use shuffle + deflate: they are small, and the
+// Blosc plugin of Debian 12 silently writes zeros for chunks below its 128-byte minimum.
+const WriterOptions kSmallDataOptions{Compression::kDeflate, 4};
+
 class Hdf5Writer final : public EventWriter {
  public:
   Hdf5Writer(const std::string& path, SensorSize sensor, const WriterOptions& options)
@@ -376,7 +384,7 @@ class Hdf5Writer final : public EventWriter {
     H5Handle group(H5Gcreate2(file_.get(), "events", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT));
     const hid_t types[4] = {H5T_STD_I64LE, H5T_STD_U16LE, H5T_STD_U16LE, H5T_STD_I8LE};
     const char* names[4] = {"events/t", "events/x", "events/y", "events/p"};
-    for (int i = 0; i < 4; ++i) columns_[i] = createExtendible(names[i], types[i], 1, &kEventChunk);
+    for (int i = 0; i < 4; ++i) columns_[i] = createExtendible(names[i], types[i], 1, &kEventChunk, options_);
     buffer_.reserve(kEventChunk);
   }
 
@@ -403,10 +411,10 @@ class Hdf5Writer final : public EventWriter {
       std::vector<hsize_t> chunk = frame_dims_;
       chunk[0] = 1;
       images_ = createExtendible("frames/images", frame_bits_ == 16 ? H5T_STD_U16LE : H5T_STD_U8LE,
-                                 static_cast<int>(chunk.size()), chunk.data());
+                                 static_cast<int>(chunk.size()), chunk.data(), kSmallDataOptions);
       const hsize_t one = 64;
-      starts_ds_ = createExtendible("frames/exposure_start", H5T_STD_I64LE, 1, &one);
-      ends_ds_ = createExtendible("frames/exposure_end", H5T_STD_I64LE, 1, &one);
+      starts_ds_ = createExtendible("frames/exposure_start", H5T_STD_I64LE, 1, &one, kSmallDataOptions);
+      ends_ds_ = createExtendible("frames/exposure_end", H5T_STD_I64LE, 1, &one, kSmallDataOptions);
     } else if (static_cast<hsize_t>(img.rows) != frame_dims_[1] ||
                static_cast<hsize_t>(img.cols) != frame_dims_[2] || (c == 3) != (frame_dims_.size() == 4)) {
       throwInFile(out_.finalPath(), "all frames of a recording must have the same size and channels");
@@ -435,28 +443,30 @@ class Hdf5Writer final : public EventWriter {
     if (index_valid_) {
       const hsize_t n = ms_to_idx_.size();
       const hsize_t chunk = std::clamp<hsize_t>(n, 1, 1 << 16);
-      H5Handle ds = createExtendible("events/ms_to_idx", H5T_STD_U64LE, 1, &chunk);
+      H5Handle ds = createExtendible("events/ms_to_idx", H5T_STD_U64LE, 1, &chunk, kSmallDataOptions);
       appendRows(ds.get(), H5T_NATIVE_UINT64, 0, {n}, ms_to_idx_.data());
       writeIntAttribute(ds.get(), "t_offset", t_offset_);
     }
-    for (auto& c : columns_) c.reset();
-    images_.reset();
-    starts_ds_.reset();
-    ends_ds_.reset();
-    if (H5Fclose(file_.get()) < 0) throwInFile(out_.finalPath(), "cannot finish the HDF5 file (disk full?)");
-    file_ = H5Handle();
+    // Chunks are compressed and written when a dataset closes: a failure shows up only here.
+    bool ok = true;
+    for (H5Handle* ds : {&columns_[0], &columns_[1], &columns_[2], &columns_[3], &images_, &starts_ds_, &ends_ds_}) {
+      if (ds->valid()) ok &= H5Dclose(ds->release()) >= 0;
+    }
+    ok &= H5Fclose(file_.release()) >= 0;
+    if (!ok) throwInFile(out_.finalPath(), "cannot finish the HDF5 file (disk full, or a compression filter failed)");
     out_.commit();
   }
 
  private:
-  H5Handle createExtendible(const char* name, hid_t type, int rank, const hsize_t* chunk) {
+  H5Handle createExtendible(const char* name, hid_t type, int rank, const hsize_t* chunk,
+                            const WriterOptions& compression) {
     std::vector<hsize_t> dims(chunk, chunk + rank), maxdims(chunk, chunk + rank);
     dims[0] = 0;
     maxdims[0] = H5S_UNLIMITED;
     H5Handle space(H5Screate_simple(rank, dims.data(), maxdims.data()));
     H5Handle dcpl(H5Pcreate(H5P_DATASET_CREATE));
     H5Pset_chunk(dcpl.get(), rank, chunk);
-    applyCompression(dcpl.get(), options_, out_.finalPath());
+    applyCompression(dcpl.get(), compression, out_.finalPath());
     H5Handle ds(H5Dcreate2(file_.get(), name, type, space.get(), H5P_DEFAULT, dcpl.get(), H5P_DEFAULT));
     if (!ds) throwInFile(out_.finalPath(), std::string("cannot create dataset ") + name);
     return ds;

@@ -30,6 +30,8 @@ class H5Handle {
   H5Handle& operator=(const H5Handle&) = delete;
 
   hid_t get() const { return id_; }
+  // Gives up ownership (the caller closes the identifier).
+  hid_t release() { return std::exchange(id_, H5I_INVALID_HID); }
   bool valid() const { return id_ >= 0; }
   explicit operator bool() const { return valid(); }
   void reset();

@@ -3,6 +3,7 @@
 // "width height" (as rpg_e2vid writes) gives the sensor size. Frames, which text cannot hold, live
 // in the folder "<stem>_frames" beside the file (see writeFrameFolder).
 
+#include <algorithm>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -36,6 +37,47 @@ inline char* writeUint16(uint16_t v, char* out) {
   } while (v != 0);
   while (n > 0) *out++ = digits[--n];
   return out;
+}
+
+inline bool isDigit(char c) { return static_cast<unsigned char>(c - '0') < 10; }
+
+// Fast path for the common shape "123.456789" (at most 12 integer and 6 fractional digits, no
+// sign or exponent); returns false without moving p otherwise, and the exact general parser runs.
+inline bool parsePlainSeconds(const char*& p, const char* end, int64_t& micros) {
+  const char* s = p;
+  uint64_t whole = 0;
+  const char* digits_end = std::min(end, s + 12);
+  const char* start = s;
+  while (s < digits_end && isDigit(*s)) whole = whole * 10 + static_cast<uint64_t>(*s++ - '0');
+  if (s == start || s == end || isDigit(*s)) return false;
+  uint64_t frac = 0;
+  int frac_digits = 0;
+  if (*s == '.') {
+    ++s;
+    while (s < end && frac_digits < 6 && isDigit(*s)) {
+      frac = frac * 10 + static_cast<uint64_t>(*s++ - '0');
+      ++frac_digits;
+    }
+    if (s < end && (isDigit(*s) || *s == 'e' || *s == 'E')) return false;
+  } else if (*s == 'e' || *s == 'E') {
+    return false;
+  }
+  static constexpr uint64_t kScale[7] = {1000000, 100000, 10000, 1000, 100, 10, 1};
+  micros = static_cast<int64_t>(whole * 1000000 + frac * kScale[frac_digits]);
+  p = s;
+  return true;
+}
+
+// Fast unsigned integer of at most 5 digits (x, y); false if malformed or > max.
+inline bool parseSmallUnsigned(const char*& p, const char* end, uint32_t max, uint32_t& value) {
+  const char* s = p;
+  uint32_t v = 0;
+  const char* limit = std::min(end, s + 5);
+  while (s < limit && isDigit(*s)) v = v * 10 + static_cast<uint32_t>(*s++ - '0');
+  if (s == p || (s < end && isDigit(*s)) || v > max) return false;
+  value = v;
+  p = s;
+  return true;
 }
 
 inline bool isSeparator(char c) { return c == ' ' || c == '\t' || c == ','; }
@@ -104,19 +146,28 @@ class TextReader final : public EventReader {
           p = p ? p + 1 : end;
           continue;
         }
-        int64_t t, x, y, pol;
-        if (!parseSecondsAsMicros(p, end, t)) fail(line_start, end, "the timestamp t (seconds)");
+        int64_t t, pol;
+        uint32_t x, y;
+        if (!parsePlainSeconds(p, end, t) && !parseSecondsAsMicros(p, end, t)) {
+          fail(line_start, end, "the timestamp t (seconds)");
+        }
         skipSeparators(p, end);
-        if (!parseInt(p, end, 0, 65535, x)) fail(line_start, end, "x (an integer in 0..65535)");
+        if (!parseSmallUnsigned(p, end, 65535, x)) fail(line_start, end, "x (an integer in 0..65535)");
         skipSeparators(p, end);
-        if (!parseInt(p, end, 0, 65535, y)) fail(line_start, end, "y (an integer in 0..65535)");
+        if (!parseSmallUnsigned(p, end, 65535, y)) fail(line_start, end, "y (an integer in 0..65535)");
         skipSeparators(p, end);
-        if (!parseInt(p, end, -1, 1, pol)) fail(line_start, end, "polarity p (0/1 or -1/+1)");
+        if (*p == '0' || *p == '1') {
+          pol = *p++ - '0';
+          if (p < end && isDigit(*p)) fail(line_start, end, "polarity p (0/1 or -1/+1)");
+        } else if (!parseInt(p, end, -1, 1, pol)) {
+          fail(line_start, end, "polarity p (0/1 or -1/+1)");
+        }
         skipSeparators(p, end);
         if (p < end && *p == '\r') ++p;
         if (p < end && *p != '\n') fail(line_start, end, "end of line after 4 fields");
         ++p;
-        if (info_.sensor.known() && (x >= info_.sensor.width || y >= info_.sensor.height)) {
+        if (info_.sensor.known() && (x >= static_cast<uint32_t>(info_.sensor.width) ||
+                                     y >= static_cast<uint32_t>(info_.sensor.height))) {
           throwAtLine(path_, line_,
                       "event (x, y) = (" + std::to_string(x) + ", " + std::to_string(y) +
                           ") lies outside the " + std::to_string(info_.sensor.width) + "x" +
