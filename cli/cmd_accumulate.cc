@@ -2,6 +2,7 @@
 // Streams the recording and writes, per window, a PNG for people and the float data as .npy, plus
 // windows.csv (index, t_begin_us, t_end_us, events). The folder appears only when complete.
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -145,8 +146,13 @@ int runAccumulate(const Args& args) {
 
   SensorSize sensor = reader->info().sensor;
   if (!sensor.known()) {
-    // Text without a header: the size comes from the data, which takes one pass.
-    sensor = readRecording(in, format).info.sensor;
+    // Text without a header: the size comes from the data, which takes one streaming pass.
+    auto scan = openReader(in, format);
+    Chunk chunk;
+    while (scan->next(chunk, size_t{1} << 20)) {
+      const SensorSize box = boundingSensor(chunk.events.view());
+      sensor = SensorSize{std::max(sensor.width, box.width), std::max(sensor.height, box.height)};
+    }
     if (!sensor.known()) throwInFile(in, "no events, nothing to accumulate");
   }
 

@@ -124,6 +124,48 @@ TEST(IoErrors, Hdf5WithoutEventsOrWithBadValues) {
   }
 }
 
+// Writes an evkit-layout file with arbitrary (possibly invalid) columns through the raw C API.
+void writeRawEvkit(const std::string& path, const std::vector<int64_t>& t, const std::vector<uint16_t>& x,
+                   const std::vector<uint16_t>& y, const std::vector<int8_t>& p, int width, int height) {
+  const hid_t f = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+  const hid_t g = H5Gcreate2(f, "events", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  const auto put = [&](const char* name, hid_t type, const void* data, hsize_t n) {
+    const hid_t space = H5Screate_simple(1, &n, nullptr);
+    const hid_t ds = H5Dcreate2(g, name, type, space, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+    H5Dwrite(ds, type, H5S_ALL, H5S_ALL, H5P_DEFAULT, data);
+    H5Dclose(ds);
+    H5Sclose(space);
+  };
+  put("t", H5T_NATIVE_INT64, t.data(), t.size());
+  put("x", H5T_NATIVE_UINT16, x.data(), x.size());
+  put("y", H5T_NATIVE_UINT16, y.data(), y.size());
+  put("p", H5T_NATIVE_INT8, p.data(), p.size());
+  const hid_t scalar = H5Screate(H5S_SCALAR);
+  for (const auto& [name, value] : {std::pair<const char*, int>{"sensor_width", width}, {"sensor_height", height},
+                                    {"evkit_layout", 1}}) {
+    const hid_t a = H5Acreate2(f, name, H5T_NATIVE_INT, scalar, H5P_DEFAULT, H5P_DEFAULT);
+    H5Awrite(a, H5T_NATIVE_INT, &value);
+    H5Aclose(a);
+  }
+  H5Sclose(scalar);
+  H5Gclose(g);
+  H5Fclose(f);
+}
+
+TEST(IoErrors, Hdf5EventsOutsideTheSensorBackwardsInTimeOrMismatchedColumns) {
+  ScratchDir dir;
+  writeRawEvkit(dir / "back.h5", {5, 6, 4}, {1, 1, 1}, {1, 1, 1}, {1, -1, 1}, 10, 10);
+  expectContains(readError(dir / "back.h5"), "event 2: timestamp 4 us goes back in time (previous 6 us)");
+  writeRawEvkit(dir / "out.h5", {5, 6, 7}, {1, 10, 1}, {1, 1, 1}, {1, -1, 1}, 10, 10);
+  expectContains(readError(dir / "out.h5"), "event 1: (x, y) = (10, 1) lies outside the 10x10 sensor");
+  writeRawEvkit(dir / "pol.h5", {5, 6, 7}, {1, 1, 1}, {1, 1, 1}, {1, 0, 1}, 10, 10);
+  expectContains(readError(dir / "pol.h5"), "event 1: polarity 0, expected +1 or -1");
+  writeRawEvkit(dir / "len.h5", {5, 6, 7}, {1, 1}, {1, 1, 1}, {1, 1, 1}, 10, 10);
+  expectContains(readError(dir / "len.h5"), "dataset events/x holds 2 values but events/t holds 3");
+  writeRawEvkit(dir / "size.h5", {5}, {1}, {1}, {1}, 1 << 20, 10);
+  expectContains(readError(dir / "size.h5"), "implausible sensor size");
+}
+
 TEST(IoErrors, RandomGarbageNeverCrashesTheReaders) {
   ScratchDir dir;
   std::mt19937 rng(11);
