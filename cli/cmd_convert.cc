@@ -45,20 +45,21 @@ int64_t convertFile(const std::string& in, std::optional<Format> in_format, cons
     progress.update(written);
   }
   writer->close();
+  for (const std::string& w : reader->info().warnings) std::cerr << "warning: " << w << "\n";
   return written;
 }
 
 int runConvert(const Args& args) {
   po::options_description opts("options");
   opts.add_options()("input", po::value<std::string>()->required(), "input recording")(
-      "output", po::value<std::string>()->required(), "output file (.txt, .h5)")(
-      "format", po::value<std::string>(), "input format (text, hdf5, rpg); default: from the name")(
-      "out-format", po::value<std::string>(), "output format (text, hdf5); default: from the name")(
+      "output", po::value<std::string>()->required(), "output file (.txt, .h5, .aedat4)")(
+      "format", po::value<std::string>(), "input format (text, hdf5, rpg, aedat2, aedat3, aedat4, evt2, evt3, dat); default: from the name")(
+      "out-format", po::value<std::string>(), "output format (text, hdf5, aedat4); default: from the name")(
       "start", po::value<std::string>(), "keep events from this time: µs, 1.5s, or +10ms from the first event")(
       "end", po::value<std::string>(), "keep events before this time (same forms as --start)")(
       "compression", po::value<std::string>()->default_value("auto"),
       "HDF5: blosc-lz4 (fast; needs the Blosc plugin to read), deflate (readable everywhere), none; "
-      "auto = blosc-lz4 when the plugin is installed")(
+      "AEDAT 4: lz4, zstd, none; auto = blosc-lz4 (or deflate without the plugin) / lz4")(
       "level", po::value<int>()->default_value(1), "HDF5 compression level 0-9");
   po::positional_options_description pos;
   pos.add("input", 1).add("output", 1);

@@ -45,6 +45,7 @@ void printInfo(const std::string& path, std::optional<Format> format) {
 
   std::printf("file:        %s\n", path.c_str());
   std::printf("format:      %s (%s layout)\n", formatName(info.format).c_str(), info.layout.c_str());
+  if (!info.camera.empty()) std::printf("camera:      %s\n", info.camera.c_str());
   if (info.sensor.known()) {
     std::printf("sensor:      %d x %d\n", info.sensor.width, info.sensor.height);
   } else {
@@ -71,16 +72,18 @@ void printInfo(const std::string& path, std::optional<Format> format) {
   std::printf("\n");
   if (info.calibration) {
     const Calibration& c = *info.calibration;
-    std::printf("camera:      fx %.3f fy %.3f cx %.3f cy %.3f, %zu distortion coefficients\n", c.fx, c.fy,
+    std::printf("intrinsics:  fx %.3f fy %.3f cx %.3f cy %.3f, %zu distortion coefficients\n", c.fx, c.fy,
                 c.cx, c.cy, c.distortion.size());
   }
+  for (const auto& [key, value] : info.counters) std::printf("  %-28s %s\n", key.c_str(), withThousands(value).c_str());
   std::fflush(stdout);
+  for (const std::string& w : info.warnings) std::fprintf(stderr, "warning: %s\n", w.c_str());
 }
 
 int runInfo(const Args& args) {
   po::options_description opts("options");
   opts.add_options()("input", po::value<std::string>()->required(), "recording (file or RPG folder)")(
-      "format", po::value<std::string>(), "input format (text, hdf5, rpg); default: from the name");
+      "format", po::value<std::string>(), "input format (text, hdf5, rpg, aedat2, aedat3, aedat4, evt2, evt3, dat); default: from the name");
   po::positional_options_description pos;
   pos.add("input", 1);
   po::variables_map vm;

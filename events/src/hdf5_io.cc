@@ -367,6 +367,9 @@ void applyCompression(hid_t dcpl, const WriterOptions& options, const std::strin
       H5Pset_filter(dcpl, kBloscFilter, H5Z_FLAG_MANDATORY, 7, cd);
       break;
     }
+    case Compression::kLz4:
+    case Compression::kZstd:
+      throwInFile(path, "HDF5 compresses with blosc-lz4, deflate or none, not " + compressionName(compression));
   }
 }
 

@@ -14,10 +14,16 @@ namespace fs = std::filesystem;
 
 namespace {
 
-constexpr std::array<std::pair<Format, const char*>, 3> kFormatNames = {{
+constexpr std::array<std::pair<Format, const char*>, 9> kFormatNames = {{
     {Format::kText, "text"},
     {Format::kHdf5, "hdf5"},
     {Format::kRpgFolder, "rpg"},
+    {Format::kAedat2, "aedat2"},
+    {Format::kAedat31, "aedat3"},
+    {Format::kAedat4, "aedat4"},
+    {Format::kEvt2, "evt2"},
+    {Format::kEvt3, "evt3"},
+    {Format::kDat, "dat"},
 }};
 
 std::string lowerExtension(const std::string& path) {
@@ -28,8 +34,32 @@ std::string lowerExtension(const std::string& path) {
 
 std::optional<Format> formatFromExtension(const std::string& path) {
   const std::string ext = lowerExtension(path);
-  if (ext == ".txt" || ext == ".csv" || ext == ".dat_txt") return Format::kText;
+  if (ext == ".txt" || ext == ".csv") return Format::kText;
   if (ext == ".h5" || ext == ".hdf5" || ext == ".hdf" || ext == ".he5") return Format::kHdf5;
+  if (ext == ".aedat4") return Format::kAedat4;
+  if (ext == ".aedat3") return Format::kAedat31;
+  if (ext == ".aedat") return Format::kAedat2;  // refined by the first line
+  if (ext == ".raw") return Format::kEvt2;      // refined by the header
+  if (ext == ".dat") return Format::kDat;
+  return std::nullopt;
+}
+
+// What the first bytes say, when they say something.
+std::optional<Format> formatFromContent(const std::string& path) {
+  std::ifstream file(path, std::ios::binary);
+  char head[16] = {};
+  file.read(head, sizeof(head));
+  const std::string start(head, static_cast<size_t>(file.gcount()));
+  if (start.rfind("#!AER-DAT2", 0) == 0) return Format::kAedat2;
+  if (start.rfind("#!AER-DAT3", 0) == 0) return Format::kAedat31;
+  if (start.rfind("#!AER-DAT4", 0) == 0) return Format::kAedat4;
+  if (start.rfind("%", 0) == 0) {
+    const std::string evt = detail::propheseeRawVersion(path);
+    if (evt == "2.0") return Format::kEvt2;
+    if (evt == "3.0") return Format::kEvt3;
+    if (lowerExtension(path) == ".dat") return Format::kDat;
+    return std::nullopt;
+  }
   return std::nullopt;
 }
 
@@ -72,21 +102,28 @@ Format detectFormat(const std::string& path) {
   }
   if (!fs::exists(path, ec)) throwInFile(path, "no such file");
   if (!fs::is_regular_file(path, ec)) throwInFile(path, "not a regular file");
-  const bool hdf5 = hasHdf5Signature(path);
   const std::optional<Format> by_extension = formatFromExtension(path);
-  if (by_extension == Format::kHdf5 && !hdf5) {
-    throwAtByte(path, 0, "no HDF5 signature (truncated, corrupt, or not an HDF5 file)");
-  }
-  if (hdf5) {
-    if (by_extension && *by_extension != Format::kHdf5) {
-      throwAtByte(path, 0, "an HDF5 file named like a " + formatName(*by_extension) +
-                               " file; rename it or pass --format hdf5");
+  const std::optional<Format> by_content = hasHdf5Signature(path) ? Format::kHdf5 : formatFromContent(path);
+  if (by_content) {
+    const bool aedat_family = by_extension == Format::kAedat2 &&
+                              (*by_content == Format::kAedat31 || *by_content == Format::kAedat4);
+    const bool raw_family = by_extension == Format::kEvt2 && *by_content == Format::kEvt3;
+    if (by_extension && *by_extension != *by_content && !aedat_family && !raw_family) {
+      throwAtByte(path, 0, "a " + formatName(*by_content) + " file named like a " + formatName(*by_extension) +
+                               " file; rename it or pass --format " + formatName(*by_content));
     }
-    return Format::kHdf5;
+    return *by_content;
+  }
+  if (by_extension == Format::kHdf5) throwAtByte(path, 0, "no HDF5 signature (truncated, corrupt, or not an HDF5 file)");
+  if (by_extension == Format::kAedat2 || by_extension == Format::kAedat31 || by_extension == Format::kAedat4) {
+    throwAtByte(path, 0, "no '#!AER-DAT' signature (not an AEDAT file, or its header is damaged)");
+  }
+  if (by_extension == Format::kEvt2) {
+    throwAtByte(path, 0, "no '% evt 2.0' / '% evt 3.0' header line; pass --format evt2 or evt3");
   }
   if (by_extension) return *by_extension;
   throwInFile(path, "cannot tell the format from the name '" + fs::path(path).filename().string() +
-                        "' (known: .txt .csv .h5 .hdf5, or an RPG folder); pass --format");
+                        "' (known: .txt .csv .h5 .hdf5 .aedat .aedat4 .raw .dat, or an RPG folder); pass --format");
 }
 
 bool EventReader::next(Chunk& chunk, size_t max_events) {
@@ -139,6 +176,18 @@ std::unique_ptr<EventReader> openReader(const std::string& path, std::optional<F
       return detail::openHdf5Reader(path);
     case Format::kRpgFolder:
       return detail::openRpgFolderReader(path);
+    case Format::kAedat2:
+      return detail::openAedat2Reader(path);
+    case Format::kAedat31:
+      return detail::openAedat31Reader(path);
+    case Format::kAedat4:
+      return detail::openAedat4Reader(path);
+    case Format::kEvt2:
+      return detail::openEvt2Reader(path);
+    case Format::kEvt3:
+      return detail::openEvt3Reader(path);
+    case Format::kDat:
+      return detail::openDatReader(path);
   }
   throwInFile(path, "no reader for format " + formatName(f));
 }
@@ -151,15 +200,20 @@ std::string compressionName(Compression compression) {
       return "deflate";
     case Compression::kBloscLz4:
       return "blosc-lz4";
+    case Compression::kLz4:
+      return "lz4";
+    case Compression::kZstd:
+      return "zstd";
   }
   return "unknown";
 }
 
 Compression parseCompression(const std::string& name) {
-  for (Compression c : {Compression::kNone, Compression::kDeflate, Compression::kBloscLz4}) {
+  for (Compression c : {Compression::kNone, Compression::kDeflate, Compression::kBloscLz4, Compression::kLz4,
+                        Compression::kZstd}) {
     if (compressionName(c) == name) return c;
   }
-  throw Error("unknown compression '" + name + "' (known: none, deflate, blosc-lz4)");
+  throw Error("unknown compression '" + name + "' (known: none, deflate, blosc-lz4 for HDF5; lz4, zstd for AEDAT 4)");
 }
 
 std::unique_ptr<EventWriter> openWriter(const std::string& path, Format format, SensorSize sensor,
@@ -169,15 +223,20 @@ std::unique_ptr<EventWriter> openWriter(const std::string& path, Format format, 
       return detail::openTextWriter(path, sensor);
     case Format::kHdf5:
       return detail::openHdf5Writer(path, sensor, options);
-    case Format::kRpgFolder:
+    case Format::kAedat4:
+      return detail::openAedat4Writer(path, sensor, options);
+    default:
       break;
   }
   throwInFile(path, "format " + formatName(format) + " can be read but not written");
 }
 
 Format outputFormat(const std::string& path) {
-  if (const auto f = formatFromExtension(path)) return *f;
-  throwInFile(path, "cannot tell the output format from the extension (known: .txt .h5); pass --format");
+  const std::string ext = lowerExtension(path);
+  if (ext == ".aedat4" || ext == ".aedat") return Format::kAedat4;
+  const auto f = formatFromExtension(path);
+  if (f == Format::kText || f == Format::kHdf5) return *f;
+  throwInFile(path, "cannot tell the output format from the extension (writable: .txt .h5 .aedat4); pass --out-format");
 }
 
 Recording readRecording(const std::string& path, std::optional<Format> format, int64_t t_begin,

@@ -13,6 +13,7 @@
 
 #include <cstdint>
 #include <limits>
+#include <map>
 #include <memory>
 #include <optional>
 #include <string>
@@ -28,6 +29,12 @@ enum class Format {
   kText,       // RPG: "t x y p" per line, t in seconds, p 0/1 or ±1; optional "width height" first line
   kHdf5,       // evkit's layout (read and write); DSEC and event_utils layouts (read)
   kRpgFolder,  // RPG dataset folder: events.txt, images.txt + images/, calib.txt (read)
+  kAedat2,     // jAER AEDAT 2.0: DVS events, APS frames, IMU (read)
+  kAedat31,    // cAER AEDAT 3.1: polarity and frame packets (read)
+  kAedat4,     // DV AEDAT 4.0: events, frames, IMU, triggers; LZ4/ZSTD (read and write)
+  kEvt2,       // Prophesee EVT 2.0 raw (read)
+  kEvt3,       // Prophesee EVT 3.0 raw (read)
+  kDat,        // Prophesee DAT, CD events (read)
 };
 
 // "text", "hdf5", "rpg"; parseFormat throws evkit::Error listing the known names.
@@ -41,10 +48,15 @@ Format outputFormat(const std::string& path);
 
 struct ReaderInfo {
   Format format = Format::kText;
-  std::string layout;   // e.g. "rpg-text", "evkit", "dsec", "event_utils"
+  std::string layout;   // e.g. "rpg-text", "evkit", "dsec", "event_utils", "aedat4-lz4"
+  std::string camera;   // as the file names it ("DAVIS240C", "DVXplorer_DXB00010"), when it does
   SensorSize sensor;    // unknown (0x0) when the file does not say; see readRecording
   std::optional<int64_t> event_count;  // when the format knows it without a full pass
   std::optional<Calibration> calibration;
+  // Format-specific tallies, complete once the reader is exhausted ("aps_words", "imu_words",
+  // "packets.EVTS", ...), and problems that were tolerated (a cut-off last record).
+  std::map<std::string, int64_t> counters;
+  std::vector<std::string> warnings;
 };
 
 struct Chunk {
@@ -87,17 +99,19 @@ class EventReader {
 std::unique_ptr<EventReader> openReader(const std::string& path,
                                         std::optional<Format> format = std::nullopt);
 
-enum class Compression { kNone, kDeflate, kBloscLz4 };
+// kDeflate and kBloscLz4 apply to HDF5, kLz4 and kZstd to AEDAT 4, kNone to both.
+enum class Compression { kNone, kDeflate, kBloscLz4, kLz4, kZstd };
 std::string compressionName(Compression compression);
 Compression parseCompression(const std::string& name);
 
 struct WriterOptions {
-  // HDF5 only. kBloscLz4 (byte shuffle + LZ4 inside Blosc, as DSEC) reads ~4x faster than kDeflate
+  // AEDAT 4: kLz4 (default), kZstd or kNone, as DV writes them.
+  // HDF5: kBloscLz4 (byte shuffle + LZ4 inside Blosc, as DSEC) reads ~4x faster than kDeflate
   // but needs the Blosc filter plugin to read (Debian: hdf5-filter-plugin; pip: `import hdf5plugin`);
   // kDeflate (shuffle + deflate) is readable by every HDF5 build. Unset: Blosc-LZ4 when the plugin
   // is installed, otherwise deflate.
   std::optional<Compression> compression;
-  int level = 1;  // deflate 0-9; Blosc clevel 0-9 (1 keeps LZ4 at its fastest)
+  int level = 1;  // deflate 0-9; Blosc clevel 0-9 (1 keeps LZ4 at its fastest); Zstandard 1-19
 };
 
 // Writes to "<path>.tmp-<pid>" and renames to `path` on close(); a writer destroyed before close()
