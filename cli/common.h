@@ -70,6 +70,7 @@ int runInfo(const Args& args);
 int runConvert(const Args& args);
 int runAccumulate(const Args& args);
 int runDemo(const Args& args);
+int runFrames(const Args& args);
 
 // Building blocks the demo reuses.
 void printInfo(const std::string& path, std::optional<Format> format);

@@ -25,6 +25,7 @@ const std::map<std::string, Command>& commands() {
       {"info", {evkit::cli::runInfo, "describe a recording: format, sensor, events, time span, frames"}},
       {"convert", {evkit::cli::runConvert, "convert a recording between formats, optionally a time window"}},
       {"accumulate", {evkit::cli::runAccumulate, "event frames, counts, time surfaces, voxel grids as PNG + .npy"}},
+      {"frames", {evkit::cli::runFrames, "export a recording's frames as PNGs plus frames.csv of exposure times"}},
       {"demo", {evkit::cli::runDemo, "the built-in default job: random recording -> formats -> info -> PNG"}},
   };
   return table;

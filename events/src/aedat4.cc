@@ -148,10 +148,12 @@ class Aedat4Reader final : public EventReader {
       if (!decompress(codec_, raw.data(), raw.size(), table_buf_, kMaxPacketBytes, error)) throw Error(error);
       const auto* table = verifiedSizePrefixedRoot<fb4::FileDataTable>(table_buf_, "FTAB");
       if (table == nullptr || table->table() == nullptr) throw Error("invalid file data table");
+      // byte_offset is where the packet's data starts, 8 bytes after its header (as DV writes it).
       int64_t target = -1;
       for (const fb4::FileDataDefinition* d : *table->table()) {
-        if (d->t_end() >= t_begin && d->byte_offset() >= packets_start_ && d->byte_offset() < data_table_) {
-          target = target < 0 ? d->byte_offset() : std::min(target, d->byte_offset());
+        const int64_t header_at = d->byte_offset() - 8;
+        if (d->t_end() >= t_begin && header_at >= packets_start_ && header_at < data_table_) {
+          target = target < 0 ? header_at : std::min(target, header_at);
         }
       }
       file_.seek(target < 0 ? data_table_ : target);
@@ -451,7 +453,7 @@ class Aedat4Writer final : public EventWriter {
 
  private:
   struct Entry {
-    int64_t offset;
+    int64_t offset;  // of the packet data, after its 8-byte header
     int32_t stream, size;
     int64_t count, t_start, t_end;
   };
@@ -526,7 +528,7 @@ class Aedat4Writer final : public EventWriter {
 
   void writePacket(int32_t stream, const flatbuffers::FlatBufferBuilder& fbb, int64_t count, int64_t t0, int64_t t1) {
     compress(codec_, fbb.GetBufferPointer(), fbb.GetSize(), packed_, level_);
-    table_.push_back(Entry{offset_, stream, static_cast<int32_t>(packed_.size()), count, t0, t1});
+    table_.push_back(Entry{offset_ + 8, stream, static_cast<int32_t>(packed_.size()), count, t0, t1});
     uint8_t h[8];
     for (int i = 0; i < 4; ++i) {
       h[i] = static_cast<uint8_t>(static_cast<uint32_t>(stream) >> (8 * i));

@@ -69,23 +69,46 @@ void writeImageFile(const std::string& path, const cv::Mat& image, int bit_depth
   out.commit();
 }
 
-void writeFrameFolder(const std::string& dir, const std::vector<Frame>& frames) {
-  AtomicPath out(dir);
-  fs::create_directories(out.temporaryPath());
+struct FrameFolderWriter::State {
+  explicit State(const std::string& dir) : out(dir) {}
+  AtomicPath out;
   std::ostringstream csv;
-  csv << "index,exposure_start_us,exposure_end_us,file\n";
-  for (size_t i = 0; i < frames.size(); ++i) {
-    char name[32];
-    std::snprintf(name, sizeof(name), "%06zu.png", i);
-    const std::string file = out.temporaryPath() + "/" + name;
-    if (!cv::imwrite(file, quantize(frames[i].image, frames[i].bit_depth))) {
-      throwInFile(dir, std::string("cannot write ") + name);
-    }
-    csv << i << ',' << frames[i].exposure_start_us << ',' << frames[i].exposure_end_us << ',' << name
-        << '\n';
+};
+
+FrameFolderWriter::FrameFolderWriter(const std::string& dir) : state_(new State(dir)) {
+  std::error_code ec;
+  fs::create_directories(state_->out.temporaryPath(), ec);
+  if (ec) {
+    delete state_;
+    throwInFile(dir, "cannot create folder: " + ec.message());
   }
-  std::ofstream(out.temporaryPath() + "/frames.csv") << csv.str();
-  out.commit();
+  state_->csv << "index,exposure_start_us,exposure_end_us,file\n";
+}
+
+FrameFolderWriter::~FrameFolderWriter() { delete state_; }
+
+void FrameFolderWriter::add(const Frame& frame) {
+  char name[32];
+  std::snprintf(name, sizeof(name), "%06zu.png", count_);
+  if (!cv::imwrite(state_->out.temporaryPath() + "/" + name, quantize(frame.image, frame.bit_depth))) {
+    throwInFile(state_->out.finalPath(), std::string("cannot write ") + name);
+  }
+  state_->csv << count_ << ',' << frame.exposure_start_us << ',' << frame.exposure_end_us << ',' << name << '\n';
+  ++count_;
+}
+
+void FrameFolderWriter::close() {
+  std::ofstream csv(state_->out.temporaryPath() + "/frames.csv");
+  csv << state_->csv.str();
+  csv.close();
+  if (!csv) throwInFile(state_->out.finalPath(), "cannot write frames.csv");
+  state_->out.commit();
+}
+
+void writeFrameFolder(const std::string& dir, const std::vector<Frame>& frames) {
+  FrameFolderWriter writer(dir);
+  for (const Frame& f : frames) writer.add(f);
+  writer.close();
 }
 
 std::vector<Frame> readFrameFolder(const std::string& dir) {

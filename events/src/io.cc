@@ -244,13 +244,13 @@ Recording readRecording(const std::string& path, std::optional<Format> format, i
   auto reader = openReader(path, format);
   reader->setTimeWindow(t_begin, t_end);
   Recording rec;
-  rec.info = reader->info();
-  if (rec.info.event_count) rec.events.reserve(static_cast<size_t>(*rec.info.event_count));
+  if (reader->info().event_count) rec.events.reserve(static_cast<size_t>(*reader->info().event_count));
   Chunk chunk;
   while (reader->next(chunk, size_t{1} << 22)) {
     rec.events.append(chunk.events.view());
     for (Frame& f : chunk.frames) rec.frames.push_back(std::move(f));
   }
+  rec.info = reader->info();  // counters and warnings are complete only now
   SensorSize sensor = rec.info.sensor;
   if (!sensor.known()) {
     sensor = boundingSensor(rec.events.view());

@@ -21,8 +21,23 @@ void writeImageFile(const std::string& path, const cv::Mat& image, int bit_depth
 // Converts a float [0,1] image to CV_8U/CV_16U with rounding and clamping (NaN -> 0).
 cv::Mat quantize(const cv::Mat& image, int bit_depth);
 
-// Frames beside a file that cannot hold them (text): a folder with one PNG per frame and
-// frames.csv ("index,exposure_start_us,exposure_end_us,file"). Written atomically.
+// A folder of frames: one PNG per frame (linear, the frame's bit depth) and frames.csv
+// ("index,exposure_start_us,exposure_end_us,file"). Used beside text files, which cannot hold
+// frames, and by `evkit frames`. Frames are written as they come; the folder appears under its
+// name only at close().
+class FrameFolderWriter {
+ public:
+  explicit FrameFolderWriter(const std::string& dir);
+  ~FrameFolderWriter();
+  void add(const Frame& frame);
+  size_t count() const { return count_; }
+  void close();
+
+ private:
+  struct State;
+  State* state_;
+  size_t count_ = 0;
+};
 void writeFrameFolder(const std::string& dir, const std::vector<Frame>& frames);
 std::vector<Frame> readFrameFolder(const std::string& dir);
 
