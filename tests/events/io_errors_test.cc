@@ -80,7 +80,7 @@ TEST(IoErrors, MislabelledFiles) {
   rec.events = randomEvents({});
   writeRecording(dir / "real.h5", rec);
   test::fs::copy_file(dir / "real.h5", dir / "real.txt");
-  expectContains(readError(dir / "real.txt"), "an HDF5 file named like a text file");
+  expectContains(readError(dir / "real.txt"), "a hdf5 file named like a text file; rename it or pass --format hdf5");
 }
 
 TEST(IoErrors, TruncatedAndCorruptHdf5) {
