@@ -9,7 +9,11 @@ function(evkit_target_defaults target)
   if(EVKIT_NATIVE)
     target_compile_options(${target} PRIVATE -march=native)
   endif()
-  if(EVKIT_SANITIZE)
+  if(EVKIT_FUZZ)
+    target_compile_options(${target} PRIVATE -fsanitize=fuzzer-no-link,address,undefined -fno-omit-frame-pointer
+                                             -fno-sanitize-recover=undefined)
+    target_link_options(${target} PRIVATE -fsanitize=address,undefined)
+  elseif(EVKIT_SANITIZE)
     target_compile_options(${target} PRIVATE -fsanitize=address,undefined -fno-omit-frame-pointer
                                              -fno-sanitize-recover=undefined)
     target_link_options(${target} PRIVATE -fsanitize=address,undefined)

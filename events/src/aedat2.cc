@@ -34,10 +34,12 @@ constexpr int kAdcMax = 1023;
 
 class Aedat2Reader final : public EventReader {
  public:
-  explicit Aedat2Reader(const std::string& path) : file_(path), block_(kBlockRecords * kRecordBytes) {
+  explicit Aedat2Reader(const std::string& path) : file_(path) {
     info_.format = Format::kAedat2;
     info_.layout = "aedat2";
     readHeader();
+    block_.resize(std::min<size_t>(kBlockRecords * kRecordBytes,
+                                   static_cast<size_t>(file_.remaining()) / kRecordBytes * kRecordBytes + kRecordBytes));
     for (const char* key : {"dvs_events", "aps_words", "imu_words", "special_words", "frames"}) {
       info_.counters[key] = 0;
     }

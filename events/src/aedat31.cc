@@ -46,7 +46,10 @@ class Aedat31Reader final : public EventReader {
     ev.setSensor(info_.sensor);
     const size_t start_events = ev.size(), start_frames = chunk.frames.size();
     while (ev.size() - start_events < max_events) {
-      if (next_event_ == packet_events_ && !nextPacket()) break;
+      if (next_event_ == packet_events_) {
+        if (!nextPacket()) break;
+        continue;  // the packet may hold no events
+      }
       if (type_ == kPolarityType) {
         const uint8_t* e = payload_.data() + next_event_ * static_cast<size_t>(event_size_);
         ++next_event_;

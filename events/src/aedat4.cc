@@ -179,7 +179,7 @@ class Aedat4Reader final : public EventReader {
     std::vector<uint8_t> header(size_t{len} + 4);
     std::memcpy(header.data(), len_bytes, 4);
     file_.readExact(header.data() + 4, len, "the IOHeader");
-    flatbuffers::Verifier verifier(header.data(), header.size(), 64, 1000, /*check_alignment=*/false);
+    flatbuffers::Verifier verifier(header.data(), header.size(), 64, 1000);
     if (!verifier.VerifySizePrefixedBuffer<fb4::IOHeader>(nullptr)) file_.failAt(18, "corrupt IOHeader FlatBuffer");
     const fb4::IOHeader* h = flatbuffers::GetSizePrefixedRoot<fb4::IOHeader>(header.data());
     const int32_t compression = static_cast<int32_t>(h->compression());

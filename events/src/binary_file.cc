@@ -41,17 +41,19 @@ void BinaryFile::seek(int64_t offset) {
 
 bool BinaryFile::readLine(std::string& line, size_t max_length) {
   line.clear();
+  const int64_t start = offset_;
   int c;
-  bool any = false;
   while ((c = std::fgetc(file_)) != EOF) {
     ++offset_;
-    any = true;
-    if (c == '\n') break;
+    if (c == '\n') {
+      if (!line.empty() && line.back() == '\r') line.pop_back();
+      return true;
+    }
     line += static_cast<char>(c);
-    if (line.size() > max_length) fail("header line too long (not a text header?)");
+    if (line.size() > max_length) failAt(start, "header line too long (not a text header?)");
   }
-  if (!line.empty() && line.back() == '\r') line.pop_back();
-  return any;
+  if (line.empty()) return false;
+  failAt(start, "truncated inside the header (its last line has no end)");
 }
 
 int BinaryFile::peek() {

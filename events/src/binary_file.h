@@ -26,8 +26,9 @@ class BinaryFile {
   // Reads exactly n bytes or throws "FILE: byte OFFSET: truncated: expected <what>".
   void readExact(void* out, size_t n, const char* what);
   void seek(int64_t offset);
-  // Reads a text line (without "\\n" or "\\r\\n"); false at the end of the file. Lines longer than
-  // max_length are an error (a binary file is not a header).
+  // Reads a header line (without "\\n" or "\\r\\n"); false at the end of the file. A line that the
+  // end of the file cuts off, or one longer than max_length, is an error: the header is truncated,
+  // or this is not a text header.
   bool readLine(std::string& line, size_t max_length = 1 << 20);
   // Looks at the next byte without consuming it; -1 at the end.
   int peek();

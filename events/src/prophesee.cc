@@ -112,7 +112,7 @@ class PropheseeReader : public EventReader {
   // Refills block_ with whole words of `word_bytes`; false at the end. A cut-off last word is
   // tolerated with a warning.
   bool refill(size_t word_bytes) {
-    block_.resize(kBlockBytes);
+    block_.resize(std::min<size_t>(kBlockBytes, static_cast<size_t>(file_.remaining()) + word_bytes));
     const size_t got = file_.read(block_.data(), block_.size());
     block_offset_ = file_.offset() - static_cast<int64_t>(got);
     const size_t whole = got / word_bytes * word_bytes;

@@ -104,9 +104,13 @@ std::string snippet(const char* begin, const char* end) {
 
 class TextReader final : public EventReader {
  public:
-  explicit TextReader(std::string path) : path_(std::move(path)), buffer_(kBufferBytes) {
+  explicit TextReader(std::string path) : path_(std::move(path)) {
     file_ = std::fopen(path_.c_str(), "rb");
     if (!file_) throwInFile(path_, "cannot open for reading");
+    // No bigger than the file needs (plus the spare byte for a missing final newline).
+    std::error_code ec;
+    const uintmax_t size = fs::file_size(path_, ec);
+    buffer_.resize(ec ? kBufferBytes : static_cast<size_t>(std::min<uintmax_t>(kBufferBytes, size + 2)));
     info_.format = Format::kText;
     info_.layout = "rpg-text";
     fill();

@@ -1,0 +1,70 @@
+#!/usr/bin/env bash
+# Fuzzes every reader with libFuzzer (clang, ASan + UBSan) for a given time each.
+#
+#   bash scripts/fuzz.sh [SECONDS_PER_READER=30] [READER ...]
+#
+# Readers: text hdf5 aedat2 aedat3 aedat4 evt2 evt3 dat (default: all). Seed corpora come from the
+# real fixtures in ../shared/fixtures/real (when present), from files the evkit binary writes, and
+# from a few hand-made headers. A single allocation over 512 MB counts as a failure (no size field
+# of a file may drive an allocation), as does a crash, a sanitizer report, or an input running
+# longer than 10 s. Crashing inputs are left in build-fuzz/artifacts/.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+seconds=${1:-30}
+shift || true
+readers=("$@")
+[ ${#readers[@]} -gt 0 ] || readers=(text hdf5 aedat2 aedat3 aedat4 evt2 evt3 dat)
+
+CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DEVKIT_FUZZ=ON \
+  -DEVKIT_BUILD_TESTS=OFF -DEVKIT_BUILD_BENCHMARKS=OFF -DEVKIT_NATIVE=OFF >/dev/null
+cmake --build build-fuzz -j "$(nproc)" --target evkit_fuzzers evkit >/dev/null
+
+work=build-fuzz/work
+seeds=build-fuzz/seeds
+rm -rf "$work" "$seeds"
+mkdir -p "$work" "$seeds" build-fuzz/artifacts
+for r in "${readers[@]}"; do mkdir -p "$seeds/$r"; done
+
+# Seeds written by evkit itself.
+evkit=build-fuzz/cli/evkit
+ASAN_OPTIONS=detect_leaks=0 "$evkit" demo --events 300 --out "$work/demo" >/dev/null
+cp "$work/demo/random.txt" "$seeds/text/" 2>/dev/null || true
+[ -d "$seeds/hdf5" ] && ASAN_OPTIONS=detect_leaks=0 "$evkit" convert "$work/demo/random.txt" "$seeds/hdf5/a.h5" --compression deflate 2>/dev/null
+[ -d "$seeds/aedat4" ] && ASAN_OPTIONS=detect_leaks=0 "$evkit" convert "$work/demo/random.txt" "$seeds/aedat4/a.aedat4" 2>/dev/null
+[ -d "$seeds/aedat4" ] && ASAN_OPTIONS=detect_leaks=0 "$evkit" convert "$work/demo/random.txt" "$seeds/aedat4/z.aedat4" --compression zstd 2>/dev/null
+
+# Prefixes of the real recordings (the AEDAT 2.0 headers alone are ~175 kB).
+fixtures=../shared/fixtures/real
+if [ -d "$fixtures" ]; then
+  [ -d "$seeds/aedat2" ] && head -c 180000 "$fixtures/davis240c_translboxes.aedat" > "$seeds/aedat2/translboxes.aedat"
+  [ -d "$seeds/aedat2" ] && cp "$fixtures/davis346red_header_only.aedat" "$seeds/aedat2/"
+  [ -d "$seeds/aedat4" ] && head -c 60000 "$fixtures/dvxplorer_sample.aedat4" > "$seeds/aedat4/dvxplorer.aedat4"
+  [ -d "$seeds/evt2" ] && head -c 40000 "$fixtures/prophesee_gen3_evt2.raw" > "$seeds/evt2/gen3.raw"
+  [ -d "$seeds/dat" ] && cp "$fixtures/atis_ncars_sample.dat" "$seeds/dat/"
+else
+  echo "fuzz: ../shared/fixtures/real absent; seeding from hand-made files only"
+fi
+# Hand-made seeds for formats without a public recording.
+[ -d "$seeds/aedat3" ] && printf '#!AER-DAT3.1\r\n#Source 1: DAVIS240C\r\n#!END-HEADER\r\n\x01\x00\x01\x00\x08\x00\x00\x00\x04\x00\x00\x00\x00\x00\x00\x00\x01\x00\x00\x00\x01\x00\x00\x00\x01\x00\x00\x00\x07\x00\x02\x00\x10\x00\x00\x00' > "$seeds/aedat3/a.aedat"
+[ -d "$seeds/evt3" ] && printf '%% evt 3.0\n%% format EVT3;height=720;width=1280\n%% end\n\x01\x80\x05\x60\x0a\x00\x03\x2a\x64\x30\x05\x40\x80\x50' > "$seeds/evt3/a.raw"
+[ -d "$seeds/evt2" ] && printf '%% evt 2.0\n%% geometry 640x480\n\x0a\x00\x00\x80\x09\x38\x40\x11' > "$seeds/evt2/a.raw"
+[ -d "$seeds/dat" ] && printf '%% Version 2\n%% Width 304\n%% Height 240\n\x0c\x08\x64\x00\x00\x00\x2c\x41\x04\x10' > "$seeds/dat/a.dat"
+
+failed=0
+for r in "${readers[@]}"; do
+  corpus="$work/corpus-$r"
+  mkdir -p "$corpus"
+  echo "== fuzz $r for ${seconds}s"
+  if ! ASAN_OPTIONS=detect_leaks=1:allocator_may_return_null=0 EVKIT_FUZZ_DIR="$work" \
+      "build-fuzz/tests/fuzz/fuzz_$r" "$corpus" "$seeds/$r" -max_total_time="$seconds" -timeout=10 \
+      -malloc_limit_mb=512 -rss_limit_mb=3000 -max_len=262144 -seed=1 -print_final_stats=1 \
+      -artifact_prefix="build-fuzz/artifacts/$r-" > "$work/$r.log" 2>&1; then
+    echo "fuzz $r: FAILED (log: $work/$r.log)"
+    tail -40 "$work/$r.log"
+    failed=1
+  else
+    grep -E "stat::number_of_executed_units|cov:" "$work/$r.log" | tail -2 | sed "s/^/  /"
+  fi
+done
+exit $failed
