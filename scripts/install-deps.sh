@@ -11,7 +11,7 @@ packages=(
   liblz4-dev libzstd-dev libflatbuffers-dev flatbuffers-compiler
   libgtest-dev libgmock-dev libbenchmark-dev
   clang libclang-rt-14-dev
-  python3 python3-h5py python3-numpy
+  python3 python3-h5py python3-numpy python3-lz4
 )
 
 missing=()

@@ -106,8 +106,8 @@ std::map<int, StreamInfo> parseStreams(const std::string& xml) {
 }
 
 template <typename T>
-const T* verifiedSizePrefixedRoot(const std::vector<uint8_t>& buf, const char* identifier) {
-  flatbuffers::Verifier verifier(buf.data(), buf.size(), 64, 10'000'000);
+const T* verifiedSizePrefixedRoot(const std::vector<uint8_t>& buf, size_t size, const char* identifier) {
+  flatbuffers::Verifier verifier(buf.data(), size, 64, 10'000'000);
   if (!verifier.VerifySizePrefixedBuffer<T>(identifier)) return nullptr;
   return flatbuffers::GetSizePrefixedRoot<T>(buf.data());
 }
@@ -145,8 +145,9 @@ class Aedat4Reader final : public EventReader {
       std::vector<uint8_t> raw(static_cast<size_t>(file_.remaining()));
       file_.readExact(raw.data(), raw.size(), "file data table");
       std::string error;
-      if (!decompress(codec_, raw.data(), raw.size(), table_buf_, kMaxPacketBytes, error)) throw Error(error);
-      const auto* table = verifiedSizePrefixedRoot<fb4::FileDataTable>(table_buf_, "FTAB");
+      size_t table_size = 0;
+      if (!decompress(codec_, raw.data(), raw.size(), table_buf_, table_size, kMaxPacketBytes, error)) throw Error(error);
+      const auto* table = verifiedSizePrefixedRoot<fb4::FileDataTable>(table_buf_, table_size, "FTAB");
       if (table == nullptr || table->table() == nullptr) throw Error("invalid file data table");
       // byte_offset is where the packet's data starts, 8 bytes after its header (as DV writes it).
       int64_t target = -1;
@@ -232,9 +233,10 @@ class Aedat4Reader final : public EventReader {
       ++info_.counters["packets." + type];
       if (type != "EVTS" && type != "FRME" && type != "IMUS" && type != "TRIG") continue;
       std::string error;
-      if (!decompress(codec_, raw_.data(), raw_.size(), buf_, kMaxPacketBytes, error)) file_.failAt(at + 8, error);
+      size_t size_out = 0;
+      if (!decompress(codec_, raw_.data(), raw_.size(), buf_, size_out, kMaxPacketBytes, error)) file_.failAt(at + 8, error);
       if (type == "EVTS") {
-        const auto* packet = verifiedSizePrefixedRoot<fb4::EventPacket>(buf_, "EVTS");
+        const auto* packet = verifiedSizePrefixedRoot<fb4::EventPacket>(buf_, size_out, "EVTS");
         if (packet == nullptr) file_.failAt(at + 8, "corrupt EVTS packet (FlatBuffer verification failed)");
         if (packet->elements() == nullptr || packet->elements()->size() == 0) continue;
         events_ = packet->elements();
@@ -243,18 +245,18 @@ class Aedat4Reader final : public EventReader {
         return true;
       }
       if (type == "FRME") {
-        const auto* frame = verifiedSizePrefixedRoot<fb4::Frame>(buf_, "FRME");
+        const auto* frame = verifiedSizePrefixedRoot<fb4::Frame>(buf_, size_out, "FRME");
         if (frame == nullptr) file_.failAt(at + 8, "corrupt FRME packet (FlatBuffer verification failed)");
         chunk.frames.push_back(toFrame(*frame, it->second, at));
         ++info_.counters["frames"];
         return true;
       }
       if (type == "IMUS") {
-        const auto* imu = verifiedSizePrefixedRoot<fb4::ImuPacket>(buf_, "IMUS");
+        const auto* imu = verifiedSizePrefixedRoot<fb4::ImuPacket>(buf_, size_out, "IMUS");
         if (imu == nullptr) file_.failAt(at + 8, "corrupt IMUS packet (FlatBuffer verification failed)");
         info_.counters["imu_samples"] += imu->elements() ? imu->elements()->size() : 0;
       } else {
-        const auto* trig = verifiedSizePrefixedRoot<fb4::TriggerPacket>(buf_, "TRIG");
+        const auto* trig = verifiedSizePrefixedRoot<fb4::TriggerPacket>(buf_, size_out, "TRIG");
         if (trig == nullptr) file_.failAt(at + 8, "corrupt TRIG packet (FlatBuffer verification failed)");
         info_.counters["triggers"] += trig->elements() ? trig->elements()->size() : 0;
       }
@@ -271,16 +273,20 @@ class Aedat4Reader final : public EventReader {
     const int h = info_.sensor.known() ? info_.sensor.height : 65536;
     bool bad = false;
     int64_t prev = last_t_;
+    const auto* in = reinterpret_cast<const fb4::Event*>(events_->Data()) + first;  // verified size
+    int64_t* out_t = ev.t.data() + base;
+    uint16_t* out_x = ev.x.data() + base;
+    uint16_t* out_y = ev.y.data() + base;
+    int8_t* out_p = ev.p.data() + base;
     for (size_t i = 0; i < n; ++i) {
-      const fb4::Event* e = events_->Get(static_cast<flatbuffers::uoffset_t>(first + i));
-      const int64_t t = e->t();
-      const int x = e->x(), y = e->y();
+      const int64_t t = in[i].t();
+      const int x = in[i].x(), y = in[i].y();
       bad |= (x < 0) | (y < 0) | (x >= w) | (y >= h) | (t < prev);
       prev = t;
-      ev.t[base + i] = t;
-      ev.x[base + i] = static_cast<uint16_t>(x);
-      ev.y[base + i] = static_cast<uint16_t>(y);
-      ev.p[base + i] = e->on() ? 1 : -1;
+      out_t[i] = t;
+      out_x[i] = static_cast<uint16_t>(x);
+      out_y[i] = static_cast<uint16_t>(y);
+      out_p[i] = static_cast<int8_t>(2 * static_cast<int>(in[i].on()) - 1);  // branch-free: polarity is random
     }
     if (bad) {
       for (size_t i = 0; i < n; ++i) {

@@ -3,6 +3,7 @@
 #include <lz4frame.h>
 #include <zstd.h>
 
+#include <algorithm>
 #include <cstring>
 #include <memory>
 #include <stdexcept>
@@ -11,7 +12,14 @@ namespace evkit::detail {
 
 namespace {
 
-bool decompressLz4(const uint8_t* in, size_t in_size, std::vector<uint8_t>& out, size_t max_output,
+// LZ4 expands at most ~255:1, so the frame's declared content size is trusted only that far.
+constexpr size_t kMaxLz4Ratio = 256;
+
+void growTo(std::vector<uint8_t>& out, size_t n) {
+  if (out.size() < n) out.resize(n);
+}
+
+bool decompressLz4(const uint8_t* in, size_t in_size, std::vector<uint8_t>& out, size_t& out_size, size_t max_output,
                    std::string& error) {
   LZ4F_dctx* raw = nullptr;
   if (LZ4F_isError(LZ4F_createDecompressionContext(&raw, LZ4F_VERSION))) {
@@ -19,17 +27,28 @@ bool decompressLz4(const uint8_t* in, size_t in_size, std::vector<uint8_t>& out,
     return false;
   }
   std::unique_ptr<LZ4F_dctx, decltype(&LZ4F_freeDecompressionContext)> ctx(raw, LZ4F_freeDecompressionContext);
-  out.resize(std::min<size_t>(max_output, std::max<size_t>(in_size * 4, 1 << 16)));
-  size_t produced = 0, consumed = 0;
+  size_t consumed = 0;
+  size_t limit = std::min<size_t>(max_output, std::max<size_t>(in_size * 4, 1 << 16));
+  LZ4F_frameInfo_t frame_info;
+  size_t header_bytes = in_size;
+  if (!LZ4F_isError(LZ4F_getFrameInfo(ctx.get(), &frame_info, in, &header_bytes))) {
+    consumed = header_bytes;
+    if (frame_info.contentSize > 0) {
+      limit = std::min<size_t>({max_output, static_cast<size_t>(frame_info.contentSize), in_size * kMaxLz4Ratio + 4096});
+    }
+  }
+  growTo(out, std::max<size_t>(limit, 1));
+  size_t produced = 0;
   while (true) {
-    if (produced == out.size()) {
-      if (out.size() >= max_output) {
+    if (produced == limit) {
+      if (limit >= max_output) {
         error = "decompressed packet larger than " + std::to_string(max_output) + " bytes";
         return false;
       }
-      out.resize(std::min(max_output, out.size() * 2));
+      limit = std::min(max_output, limit * 2);
+      growTo(out, limit);
     }
-    size_t dst = out.size() - produced, src = in_size - consumed;
+    size_t dst = limit - produced, src = in_size - consumed;
     const size_t hint = LZ4F_decompress(ctx.get(), out.data() + produced, &dst, in + consumed, &src, nullptr);
     if (LZ4F_isError(hint)) {
       error = std::string("corrupt LZ4 data: ") + LZ4F_getErrorName(hint);
@@ -38,31 +57,33 @@ bool decompressLz4(const uint8_t* in, size_t in_size, std::vector<uint8_t>& out,
     produced += dst;
     consumed += src;
     if (hint == 0) break;  // frame complete
-    if (consumed == in_size && produced < out.size()) {
+    if (consumed == in_size && produced < limit) {
       error = "truncated LZ4 frame";
       return false;
     }
   }
-  out.resize(produced);
+  out_size = produced;
   return true;
 }
 
-bool decompressZstd(const uint8_t* in, size_t in_size, std::vector<uint8_t>& out, size_t max_output,
+bool decompressZstd(const uint8_t* in, size_t in_size, std::vector<uint8_t>& out, size_t& out_size, size_t max_output,
                     std::string& error) {
   std::unique_ptr<ZSTD_DStream, decltype(&ZSTD_freeDStream)> ds(ZSTD_createDStream(), ZSTD_freeDStream);
   ZSTD_initDStream(ds.get());
-  out.resize(std::min<size_t>(max_output, std::max<size_t>(in_size * 4, 1 << 16)));
+  size_t limit = std::min<size_t>(max_output, std::max<size_t>(in_size * 8, 1 << 16));
+  growTo(out, limit);
   ZSTD_inBuffer input{in, in_size, 0};
   size_t produced = 0;
   while (true) {
-    if (produced == out.size()) {
-      if (out.size() >= max_output) {
+    if (produced == limit) {
+      if (limit >= max_output) {
         error = "decompressed packet larger than " + std::to_string(max_output) + " bytes";
         return false;
       }
-      out.resize(std::min(max_output, out.size() * 2));
+      limit = std::min(max_output, limit * 2);
+      growTo(out, limit);
     }
-    ZSTD_outBuffer output{out.data() + produced, out.size() - produced, 0};
+    ZSTD_outBuffer output{out.data() + produced, limit - produced, 0};
     const size_t ret = ZSTD_decompressStream(ds.get(), &output, &input);
     if (ZSTD_isError(ret)) {
       error = std::string("corrupt Zstandard data: ") + ZSTD_getErrorName(ret);
@@ -75,26 +96,28 @@ bool decompressZstd(const uint8_t* in, size_t in_size, std::vector<uint8_t>& out
       return false;
     }
   }
-  out.resize(produced);
+  out_size = produced;
   return true;
 }
 
 }  // namespace
 
-bool decompress(Codec codec, const uint8_t* in, size_t in_size, std::vector<uint8_t>& out, size_t max_output,
-                std::string& error) {
+bool decompress(Codec codec, const uint8_t* in, size_t in_size, std::vector<uint8_t>& out, size_t& out_size,
+                size_t max_output, std::string& error) {
   switch (codec) {
     case Codec::kNone:
       if (in_size > max_output) {
         error = "packet larger than " + std::to_string(max_output) + " bytes";
         return false;
       }
-      out.assign(in, in + in_size);
+      growTo(out, in_size);
+      if (in_size > 0) std::memcpy(out.data(), in, in_size);
+      out_size = in_size;
       return true;
     case Codec::kLz4:
-      return decompressLz4(in, in_size, out, max_output, error);
+      return decompressLz4(in, in_size, out, out_size, max_output, error);
     case Codec::kZstd:
-      return decompressZstd(in, in_size, out, max_output, error);
+      return decompressZstd(in, in_size, out, out_size, max_output, error);
   }
   return false;
 }
@@ -108,6 +131,9 @@ void compress(Codec codec, const uint8_t* in, size_t in_size, std::vector<uint8_
       LZ4F_preferences_t prefs;
       std::memset(&prefs, 0, sizeof(prefs));
       prefs.frameInfo.contentSize = in_size;
+      // Independent 4 MB blocks: the reader can decompress straight into its buffer.
+      prefs.frameInfo.blockSizeID = LZ4F_max4MB;
+      prefs.frameInfo.blockMode = LZ4F_blockIndependent;
       prefs.compressionLevel = level;
       out.resize(LZ4F_compressFrameBound(in_size, &prefs));
       const size_t n = LZ4F_compressFrame(out.data(), out.size(), in, in_size, &prefs);
