@@ -18,11 +18,17 @@ class Error : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+// Header-only, so that modules that do not link evkit_events (spline/) report errors the same way.
+
 // "FILE: line N: WHAT"
-[[noreturn]] void throwAtLine(const std::string& file, int64_t line, const std::string& what);
+[[noreturn]] inline void throwAtLine(const std::string& file, int64_t line, const std::string& what) {
+  throw Error(file + ": line " + std::to_string(line) + ": " + what);
+}
 // "FILE: byte N: WHAT"
-[[noreturn]] void throwAtByte(const std::string& file, int64_t byte, const std::string& what);
+[[noreturn]] inline void throwAtByte(const std::string& file, int64_t byte, const std::string& what) {
+  throw Error(file + ": byte " + std::to_string(byte) + ": " + what);
+}
 // "FILE: WHAT"
-[[noreturn]] void throwInFile(const std::string& file, const std::string& what);
+[[noreturn]] inline void throwInFile(const std::string& file, const std::string& what) { throw Error(file + ": " + what); }
 
 }  // namespace evkit

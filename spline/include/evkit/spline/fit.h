@@ -1,0 +1,63 @@
+// Fitting a trajectory to timed poses, and comparing trajectories.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "evkit/spline/lie.h"
+#include "evkit/spline/trajectory.h"
+
+namespace evkit {
+
+struct StampedPose {
+  int64_t t_us = 0;
+  SE3 pose;  // T_world_cam
+};
+
+struct FitOptions {
+  int max_iterations = 50;
+  // Weight of rotation residuals (rad) against translation residuals (scene units).
+  double rotation_weight = 1.0;
+  // Levenberg-Marquardt damping at the start; it adapts.
+  double initial_damping = 1e-6;
+};
+
+struct FitReport {
+  int iterations = 0;
+  double initial_rms = 0;  // sqrt(mean |weighted log residual|^2)
+  double final_rms = 0;
+};
+
+// Least-squares fit of a trajectory with `knots` knots over [t_begin, t_end] to the poses:
+// minimises sum_i |W log(T(t_i)^-1 T_i)|^2 by Levenberg-Marquardt with the analytic knot Jacobians.
+// Knots start from the poses nearest to their times. Poses outside the interval are clamped to it.
+Trajectory fitTrajectory(TrajectoryKind kind, int knots, int64_t t_begin_us, int64_t t_end_us,
+                         const std::vector<StampedPose>& poses, const FitOptions& options = {},
+                         FitReport* report = nullptr);
+
+enum class Alignment { kNone, kSE3, kSim3 };
+
+struct TrajectoryErrors {
+  int count = 0;
+  double scale = 1.0;               // of the Sim(3) alignment (1 otherwise)
+  double ate_rmse = 0;              // absolute trajectory error of positions after alignment
+  double rotation_rmse_deg = 0;     // angle of R_truth^T R_aligned, RMS
+  double rpe_translation_rmse = 0;  // relative pose error between consecutive poses
+  double rpe_rotation_rmse_deg = 0;
+};
+
+// Compares an estimate with the truth, pose by pose (the same times, in order). Alignment by
+// Umeyama's method (IEEE TPAMI 1991) on the positions: SE(3) (rotation + translation) or Sim(3)
+// (with scale). With fewer than 3 poses, or positions that do not span a plane, only the mean
+// translation is aligned. Throws std::invalid_argument when the sizes differ or are empty.
+TrajectoryErrors compareTrajectories(const std::vector<SE3>& estimate, const std::vector<SE3>& truth,
+                                     Alignment alignment);
+
+// The aligning similarity: truth ~ s R estimate + t (s = 1 unless Sim(3)).
+struct Similarity {
+  double scale = 1.0;
+  SE3 transform;
+};
+Similarity alignPositions(const std::vector<Vector3>& estimate, const std::vector<Vector3>& truth, Alignment alignment);
+
+}  // namespace evkit

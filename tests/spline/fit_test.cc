@@ -1,0 +1,130 @@
+#include "evkit/spline/fit.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "evkit/events/error.h"
+#include "evkit/spline/tum.h"
+#include "test_util.h"
+
+namespace evkit {
+namespace {
+
+constexpr int64_t kT0 = 1605537493718345;
+constexpr int64_t kT1 = kT0 + 200000;
+
+std::vector<SE3> wobblyKnots(int n) {
+  std::vector<SE3> knots;
+  for (int k = 0; k < n; ++k) {
+    knots.emplace_back(expSO3(Vector3(0.05 * std::sin(k), 0.08 * k, -0.03 * k * k)), Vector3(0.1 * k, 0.02 * k * k, std::cos(k)));
+  }
+  return knots;
+}
+
+std::vector<StampedPose> sample(const Trajectory& traj, int count) {
+  std::vector<int64_t> times;
+  for (int i = 0; i < count; ++i) times.push_back(kT0 + (kT1 - kT0) * i / (count - 1));
+  return sampleTrajectory(traj, times);
+}
+
+TEST(Fit, RecoversASplineFromItsOwnSamples) {
+  for (TrajectoryKind kind : {TrajectoryKind::kCubicSE3, TrajectoryKind::kCubicSplit, TrajectoryKind::kLinear}) {
+    const Trajectory truth(kind, kT0, kT1, wobblyKnots(6));
+    FitReport report;
+    const Trajectory fit = fitTrajectory(kind, 6, kT0, kT1, sample(truth, 61), {}, &report);
+    EXPECT_LT(report.final_rms, 1e-9) << trajectoryKindName(kind);
+    EXPECT_LT(report.final_rms, report.initial_rms);
+    for (double s : {0.0, 0.33, 0.5, 0.9, 1.0}) {
+      EXPECT_LT((fit.evaluate(s).matrix() - truth.evaluate(s).matrix()).cwiseAbs().maxCoeff(), 1e-8) << trajectoryKindName(kind);
+    }
+  }
+}
+
+TEST(Fit, ApproximatesAMotionOfAnotherFamily) {
+  // A circular arc with a constant rotation rate: a 4-knot cubic follows it closely.
+  std::vector<StampedPose> poses;
+  for (int i = 0; i <= 40; ++i) {
+    const double a = 0.5 * i / 40.0;
+    poses.push_back({kT0 + (kT1 - kT0) * i / 40, SE3(expSO3(Vector3(0, a, 0)), Vector3(std::sin(a), 0, 1 - std::cos(a)))});
+  }
+  FitReport report;
+  const Trajectory fit = fitTrajectory(TrajectoryKind::kCubicSE3, 4, kT0, kT1, poses, {}, &report);
+  EXPECT_LT(report.final_rms, 1e-3);
+  std::vector<SE3> est, truth;
+  for (const auto& p : poses) {
+    est.push_back(fit.poseAt(p.t_us));
+    truth.push_back(p.pose);
+  }
+  EXPECT_LT(compareTrajectories(est, truth, Alignment::kNone).ate_rmse, 1e-3);
+}
+
+TEST(Metrics, AlignmentRemovesSimilaritiesAndReportsWhatRemains) {
+  const Trajectory truth_traj(TrajectoryKind::kCubicSE3, kT0, kT1, wobblyKnots(6));
+  std::vector<SE3> truth, est;
+  for (const auto& p : sample(truth_traj, 30)) truth.push_back(p.pose);
+  const SE3 G(expSO3(Vector3(0.3, -1.0, 0.5)), Vector3(4, -2, 1));
+  const double scale = 2.5;
+  // est = G^-1 applied with scale 1/scale: aligning must undo it.
+  for (const SE3& T : truth) {
+    const SE3 moved = G.inverse() * T;
+    est.emplace_back(moved.rotation(), moved.translation() / scale);
+  }
+  const TrajectoryErrors sim = compareTrajectories(est, truth, Alignment::kSim3);
+  EXPECT_NEAR(sim.scale, scale, 1e-9);
+  EXPECT_LT(sim.ate_rmse, 1e-9);
+  EXPECT_LT(sim.rotation_rmse_deg, 1e-7);
+  EXPECT_LT(sim.rpe_translation_rmse, 1e-9);
+  const TrajectoryErrors se3 = compareTrajectories(est, truth, Alignment::kSE3);
+  EXPECT_GT(se3.ate_rmse, 0.1);  // scale is not removed
+  EXPECT_EQ(se3.scale, 1.0);
+  // A known offset: every position 3 cm off along x, no alignment.
+  std::vector<SE3> off;
+  for (const SE3& T : truth) off.emplace_back(T.rotation(), T.translation() + Vector3(0.03, 0, 0));
+  EXPECT_NEAR(compareTrajectories(off, truth, Alignment::kNone).ate_rmse, 0.03, 1e-12);
+  EXPECT_NEAR(compareTrajectories(off, truth, Alignment::kSE3).ate_rmse, 0.0, 1e-9);
+  // A rotation error of 2 degrees on every pose, no alignment.
+  std::vector<SE3> rot;
+  for (const SE3& T : truth) rot.emplace_back(T.rotation() * expSO3(Vector3(0, 0, 2.0 * M_PI / 180)), T.translation());
+  EXPECT_NEAR(compareTrajectories(rot, truth, Alignment::kNone).rotation_rmse_deg, 2.0, 1e-9);
+  EXPECT_THROW(compareTrajectories(rot, {}, Alignment::kNone), std::invalid_argument);
+}
+
+TEST(Tum, RoundTripIsExactInTimeAndToTheLastDigitInPose) {
+  test::ScratchDir dir;
+  const Trajectory traj(TrajectoryKind::kCubicSE3, kT0, kT1, wobblyKnots(5));
+  const std::vector<StampedPose> poses = sample(traj, 17);
+  writeTum(dir / "traj.txt", poses);
+  const std::vector<StampedPose> back = readTum(dir / "traj.txt");
+  ASSERT_EQ(back.size(), poses.size());
+  for (size_t i = 0; i < poses.size(); ++i) {
+    EXPECT_EQ(back[i].t_us, poses[i].t_us);
+    EXPECT_EQ(back[i].pose.translation(), poses[i].pose.translation());
+    EXPECT_LT((back[i].pose.rotation().coeffs() - poses[i].pose.rotation().coeffs()).norm(), 3e-16);
+  }
+  EXPECT_NE(test::readText(dir / "traj.txt").find("1605537493.718345 "), std::string::npos);
+}
+
+TEST(Tum, BadLinesNameTheFileAndLine) {
+  test::ScratchDir dir;
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"1.0 0 0 0 0 0 0\n", "line 1: expected 8 fields"},
+      {"# c\n1.0 0 0 0 0 0 0 1\nx 0 0 0 0 0 0 1\n", "line 3: cannot read the time 'x'"},
+      {"1.0 0 0 0 0 0 0 2\n", "line 1: quaternion (qx qy qz qw) has norm 2"},
+      {"1.0 0 nan 0 0 0 0 1\n", "line 1: field 3 'nan' is not a finite number"},
+      {"2.0 0 0 0 0 0 0 1\n1.0 0 0 0 0 0 0 1\n", "line 2: time goes back"},
+  };
+  for (const auto& [text, expected] : cases) {
+    test::writeText(dir / "bad.txt", text);
+    try {
+      readTum(dir / "bad.txt");
+      FAIL() << expected;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(expected), std::string::npos) << e.what();
+    }
+  }
+}
+
+}  // namespace
+}  // namespace evkit
