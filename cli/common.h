@@ -71,6 +71,7 @@ int runConvert(const Args& args);
 int runAccumulate(const Args& args);
 int runDemo(const Args& args);
 int runFrames(const Args& args);
+int runSimulate(const Args& args);
 
 // Building blocks the demo reuses.
 void printInfo(const std::string& path, std::optional<Format> format);

@@ -26,6 +26,7 @@ const std::map<std::string, Command>& commands() {
       {"convert", {evkit::cli::runConvert, "convert a recording between formats, optionally a time window"}},
       {"accumulate", {evkit::cli::runAccumulate, "event frames, counts, time surfaces, voxel grids as PNG + .npy"}},
       {"frames", {evkit::cli::runFrames, "export a recording's frames as PNGs plus frames.csv of exposure times"}},
+      {"simulate", {evkit::cli::runSimulate, "events and blurry frames from an image sequence or video (ESIM model)"}},
       {"demo", {evkit::cli::runDemo, "the built-in default job: random recording -> formats -> info -> PNG"}},
   };
   return table;

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include "evkit/events/image_io.h"
 #include "evkit/events/io.h"
 #include "evkit/events/npy.h"
 #include "evkit/events/random_events.h"
@@ -143,6 +144,57 @@ TEST(Cli, BadOptionsExitWithTwo) {
     EXPECT_EQ(r.exit_code, 2) << args << ": " << r.err;
     EXPECT_EQ(lineCount(r.err), 1) << args << ": " << r.err;
   }
+}
+
+// A bar moving right over 20 frames, 1 ms apart, at absolute Unix-µs times.
+void writeMovingBar(const ScratchDir& dir, bool missing_last = false) {
+  std::string list;
+  for (int f = 0; f < 20; ++f) {
+    cv::Mat img(30, 40, CV_32F, cv::Scalar(0.1));
+    img(cv::Rect(5 + f, 0, 4, 30)).setTo(0.8);
+    const std::string name = "frame" + std::to_string(f) + ".png";
+    if (!(missing_last && f == 19)) writeImageFile(dir / name, img, 16);
+    list += std::to_string(1605537493000000 + 1000 * f) + " " + name + "\n";
+  }
+  test::writeText(dir / "timestamps.txt", list);
+}
+
+TEST(Cli, SimulateWritesEventsAndBlurryFrames) {
+  ScratchDir dir;
+  writeMovingBar(dir);
+  for (const std::string out : {"sim.h5", "sim.aedat4", "sim.txt"}) {
+    const RunResult r = runEvkit("simulate " + dir.path().string() + " --out " + (dir / out) +
+                                     " --exposure-every 5 --duty 0.6 --sigma 0.02 --refractory 50us",
+                                 dir);
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    EXPECT_NE(r.err.find("simulated 20 frames"), std::string::npos) << r.err;
+    const Recording rec = readRecording(dir / out);
+    EXPECT_GT(rec.events.size(), 500u);
+    EXPECT_NO_THROW(validate(rec.events.view(), out));
+    EXPECT_GE(rec.events.t.front(), 1605537493000000);
+    ASSERT_EQ(rec.frames.size(), 4u) << out;  // exposures of 3 intervals from frames 0, 5, 10, 15
+    EXPECT_EQ(rec.frames[1].exposure_start_us, 1605537493005000);
+    EXPECT_EQ(rec.frames[1].exposure_end_us, 1605537493008000);
+  }
+  // The bar's edges jump from 0.1 to 0.8 between frames: far more than C for 5% of the pixels.
+  const RunResult warn = runEvkit("simulate " + (dir / "timestamps.txt") + " --out " + (dir / "x.h5"), dir);
+  ASSERT_EQ(warn.exit_code, 0) << warn.err;
+  EXPECT_NE(warn.err.find("warning: 19 of 19 frame intervals change more than 1% of the pixels by more than C (worst: 5%)"),
+            std::string::npos) << warn.err;
+}
+
+TEST(Cli, SimulateReportsMissingFramesAndBadOptions) {
+  ScratchDir dir;
+  writeMovingBar(dir, true);
+  RunResult r = runEvkit("simulate " + dir.path().string() + " --out " + (dir / "o.h5"), dir);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_EQ(lineCount(r.err), 1) << r.err;
+  EXPECT_NE(r.err.find("frame19.png: no such image file"), std::string::npos) << r.err;
+  EXPECT_FALSE(test::fs::exists(dir / "o.h5"));
+  r = runEvkit("simulate " + dir.path().string() + " --out " + (dir / "o.h5") + " --contrast -1", dir);
+  EXPECT_EQ(r.exit_code, 2) << r.err;
+  r = runEvkit("simulate " + dir.path().string() + " --out " + (dir / "o.h5") + " --exposure 5", dir);
+  EXPECT_EQ(r.exit_code, 2) << r.err;
 }
 
 TEST(Cli, DemoRunsTheDefaultJob) {
