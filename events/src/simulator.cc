@@ -27,7 +27,7 @@ constexpr int64_t kMaxCountingSortSpan = int64_t{1} << 24;  // µs; longer inter
 inline uint32_t crossingOffset(float da, float db, float level, int64_t dt) {
   const double frac = (static_cast<double>(level) - da) / (static_cast<double>(db) - da);
   // In [t_a, t_b]: a crossing that rounds to t_a still follows every event of earlier intervals.
-  return static_cast<uint32_t>(std::llround(std::clamp(frac, 0.0, 1.0) * static_cast<double>(dt)));
+  return static_cast<uint32_t>(std::clamp(frac, 0.0, 1.0) * static_cast<double>(dt) + 0.5);  // round, >= 0
 }
 
 }  // namespace
@@ -54,11 +54,19 @@ void EventSimulator::addFrame(const cv::Mat& grey, int64_t t_us, EventStore& out
   const int W = sensor_.width, H = sensor_.height;
   const size_t n = static_cast<size_t>(W) * static_cast<size_t>(H);
   log_next_.resize(n);
+  if (!options_.log.lin_log) {
+    // log(max(I, 0) + eps) with OpenCV's vectorised log (the same mapping as LogMapping::toLog).
+    cv::Mat dst(H, W, CV_32F, log_next_.data());
+    cv::max(grey, 0.0, dst);
+    dst += static_cast<float>(options_.log.eps);
+    cv::log(dst, dst);
+  } else {
 #pragma omp parallel for schedule(static)
-  for (int y = 0; y < H; ++y) {
-    const float* row = grey.ptr<float>(y);
-    float* dst = log_next_.data() + static_cast<size_t>(y) * static_cast<size_t>(W);
-    for (int x = 0; x < W; ++x) dst[x] = options_.log.toLog(std::max(row[x], 0.0f));
+    for (int y = 0; y < H; ++y) {
+      const float* row = grey.ptr<float>(y);
+      float* dst = log_next_.data() + static_cast<size_t>(y) * static_cast<size_t>(W);
+      for (int x = 0; x < W; ++x) dst[x] = options_.log.toLog(std::max(row[x], 0.0f));
+    }
   }
   ++stats_.frames;
   if (!initialized_) {
@@ -90,8 +98,8 @@ void EventSimulator::addFrame(const cv::Mat& grey, int64_t t_us, EventStore& out
       const size_t i = static_cast<size_t>(y) * static_cast<size_t>(W) + static_cast<size_t>(x);
       const float lb = log_next_[i];
       const float d = lb - ref_[i] + leak * c_pos_[i];
-      uint32_t k = d >= 0 ? static_cast<uint32_t>(std::floor(d / c_pos_[i])) : static_cast<uint32_t>(std::floor(-d / c_neg_[i]));
-      counts_[i] = k;
+      // floor(|d| / C) for the threshold of d's sign (truncation is floor for |d| >= 0).
+      counts_[i] = static_cast<uint32_t>(d >= 0 ? d / c_pos_[i] : -d / c_neg_[i]);
       over_c += std::abs(lb - log_prev_[i]) > std::min(c_pos_[i], c_neg_[i]);
     }
   }
@@ -164,8 +172,8 @@ void EventSimulator::addFrame(const cv::Mat& grey, int64_t t_us, EventStore& out
 
   // Gather the emitted events (compacting the refractory holes), then a stable counting sort on
   // the µs offset: equal times keep pixel order, so the output does not depend on threads.
-  size_t emitted = 0;
-  for (size_t i = 0; i < n; ++i) {
+  size_t emitted = dropped == 0 ? total : 0;
+  for (size_t i = 0; dropped > 0 && i < n; ++i) {
     const uint64_t s = start[i];
     for (uint32_t j = 0; j < counts_[i]; ++j, ++emitted) {
       offsets_[emitted] = offsets_[s + j];
