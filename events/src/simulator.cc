@@ -204,14 +204,21 @@ void EventSimulator::addFrame(const cv::Mat& grey, int64_t t_us, EventStore& out
   out.x.resize(base + m);
   out.y.resize(base + m);
   out.p.resize(base + m);
+  // Gather in output order: sequential writes, independent reads, in parallel.
+  int64_t* out_t = out.t.data() + base;
+  uint16_t* out_x = out.x.data() + base;
+  uint16_t* out_y = out.y.data() + base;
+  int8_t* out_p = out.p.data() + base;
+  const uint32_t* order = order_.data();
+  const int64_t t_prev = t_prev_;
+#pragma omp parallel for schedule(static)
   for (size_t k = 0; k < m; ++k) {
-    const uint32_t e = order_[k];
-    const size_t dst = base + k;
+    const uint32_t e = order[k];
     const uint32_t pix = pixel_of_[e];
-    out.t[dst] = t_prev_ + offsets_[e];
-    out.x[dst] = static_cast<uint16_t>(pix % static_cast<uint32_t>(W));
-    out.y[dst] = static_cast<uint16_t>(pix / static_cast<uint32_t>(W));
-    out.p[dst] = pol_[e];
+    out_t[k] = t_prev + offsets_[e];
+    out_x[k] = static_cast<uint16_t>(pix % static_cast<uint32_t>(W));
+    out_y[k] = static_cast<uint16_t>(pix / static_cast<uint32_t>(W));
+    out_p[k] = pol_[e];
   }
   stats_.events += static_cast<int64_t>(m);
   log_prev_.swap(log_next_);
