@@ -12,6 +12,8 @@
 #include "evkit/events/image_io.h"
 #include "test_util.h"
 
+#include <opencv2/videoio.hpp>
+
 namespace evkit {
 namespace {
 
@@ -238,6 +240,49 @@ TEST(FrameSequence, ImageFolderWithTimestampsAndClearErrors) {
   EXPECT_THROW(openFrameSequence(dir.path().string()), Error);
   test::writeText(dir / "timestamps.txt", "0.5 f0.png\n");
   EXPECT_THROW(openFrameSequence(dir.path().string()), Error);
+}
+
+TEST(FrameSequence, VideoFileTimestampsFromTheFrameRate) {
+  test::ScratchDir dir;
+  const std::string path = dir / "bar.avi";
+  {
+    cv::VideoWriter writer(path, cv::VideoWriter::fourcc('M', 'J', 'P', 'G'), 100.0, cv::Size(32, 16), true);
+    ASSERT_TRUE(writer.isOpened());
+    for (int f = 0; f < 10; ++f) {
+      cv::Mat img(16, 32, CV_8UC3, cv::Scalar(20, 20, 20));
+      img(cv::Rect(2 + 2 * f, 0, 6, 16)).setTo(cv::Scalar(220, 220, 220));
+      writer.write(img);
+    }
+  }
+  SequenceOptions o;
+  o.start_us = kEpoch;
+  auto seq = openFrameSequence(path, o);
+  EXPECT_EQ(seq->sensor(), (SensorSize{32, 16}));
+  EXPECT_EQ(seq->timeOf(3), kEpoch + 30000);
+  DriverOptions d;
+  size_t events = 0;
+  const SimulatorStats stats = simulateSequence(*seq, d, [&](const EventStore& e, const std::vector<Frame>&) {
+    EXPECT_NO_THROW(validate(e.view(), "video"));
+    if (!e.empty()) {
+      EXPECT_GE(e.t.front(), kEpoch);
+    }
+    events += e.size();
+  });
+  EXPECT_EQ(stats.frames, 10);
+  EXPECT_GT(events, 200u);
+  EXPECT_THROW(openFrameSequence(dir / "none.mp4"), Error);
+}
+
+TEST(LogMapping, LinLogIsContinuousAndInvertible) {
+  LogMapping m;
+  m.lin_log = true;
+  const float thr = static_cast<float>(LogMapping::kLinLogThreshold);
+  EXPECT_NEAR(m.toLog(thr * 0.99999f), m.toLog(thr), 1e-4);
+  EXPECT_NEAR(m.toLog(0.5f), std::log(0.5f), 1e-7);
+  for (float i : {0.0f, 0.01f, 0.05f, 0.3f, 1.0f}) EXPECT_NEAR(m.fromLog(m.toLog(i)), i, 1e-6) << i;
+  const LogMapping plain;
+  EXPECT_NEAR(plain.toLog(0.0f), std::log(1e-3f), 1e-7);
+  EXPECT_NEAR(plain.fromLog(plain.toLog(0.25f)), 0.25f, 1e-6);
 }
 
 // A bright bar sweeping across a dark field at a programmable speed.
