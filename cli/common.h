@@ -72,6 +72,7 @@ int runAccumulate(const Args& args);
 int runDemo(const Args& args);
 int runFrames(const Args& args);
 int runSimulate(const Args& args);
+int runSynth(const Args& args);
 
 // Building blocks the demo reuses.
 void printInfo(const std::string& path, std::optional<Format> format);

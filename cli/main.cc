@@ -27,6 +27,7 @@ const std::map<std::string, Command>& commands() {
       {"accumulate", {evkit::cli::runAccumulate, "event frames, counts, time surfaces, voxel grids as PNG + .npy"}},
       {"frames", {evkit::cli::runFrames, "export a recording's frames as PNGs plus frames.csv of exposure times"}},
       {"simulate", {evkit::cli::runSimulate, "events and blurry frames from an image sequence or video (ESIM model)"}},
+      {"synth", {evkit::cli::runSynth, "synthetic blurry frame + events + ground truth (an observation folder), or a suite"}},
       {"demo", {evkit::cli::runDemo, "the built-in default job: random recording -> formats -> info -> PNG"}},
   };
   return table;

@@ -21,13 +21,17 @@ uint64_t mix(uint64_t x) {
   return x ^ (x >> 31);
 }
 
+constexpr float kMaxPerInterval = 1e5f;  // events of one pixel in one frame interval, at most
 constexpr int64_t kMaxCountingSortSpan = int64_t{1} << 24;  // µs; longer intervals use a stable sort
 
 // Time of a crossing inside [t_a, t_b]: where the linear ramp from da to db reaches `level`.
 inline uint32_t crossingOffset(float da, float db, float level, int64_t dt) {
-  const double frac = (static_cast<double>(level) - da) / (static_cast<double>(db) - da);
-  // In [t_a, t_b]: a crossing that rounds to t_a still follows every event of earlier intervals.
-  return static_cast<uint32_t>(std::clamp(frac, 0.0, 1.0) * static_cast<double>(dt) + 0.5);  // round, >= 0
+  double frac = (static_cast<double>(level) - da) / (static_cast<double>(db) - da);
+  // A level already reached at t_a (float round-off left D on it, da == db): fires at t_a. In
+  // [t_a, t_b] a crossing that rounds to t_a still follows every event of earlier intervals.
+  if (!(frac >= 0.0)) frac = 0.0;  // also NaN
+  if (frac > 1.0) frac = 1.0;
+  return static_cast<uint32_t>(frac * static_cast<double>(dt) + 0.5);  // round, >= 0
 }
 
 }  // namespace
@@ -98,8 +102,10 @@ void EventSimulator::addFrame(const cv::Mat& grey, int64_t t_us, EventStore& out
       const size_t i = static_cast<size_t>(y) * static_cast<size_t>(W) + static_cast<size_t>(x);
       const float lb = log_next_[i];
       const float d = lb - ref_[i] + leak * c_pos_[i];
-      // floor(|d| / C) for the threshold of d's sign (truncation is floor for |d| >= 0).
-      counts_[i] = static_cast<uint32_t>(d >= 0 ? d / c_pos_[i] : -d / c_neg_[i]);
+      // floor(|d| / C) for the threshold of d's sign (truncation is floor for |d| >= 0); a
+      // non-finite input (NaN) gives none, and no pixel emits more than kMaxPerInterval at once.
+      const float q = d >= 0 ? d / c_pos_[i] : -d / c_neg_[i];
+      counts_[i] = q >= 0 ? static_cast<uint32_t>(std::min(q, kMaxPerInterval)) : 0u;
       over_c += std::abs(lb - log_prev_[i]) > std::min(c_pos_[i], c_neg_[i]);
     }
   }

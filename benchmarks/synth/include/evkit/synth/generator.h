@@ -1,0 +1,105 @@
+// Scenes (presets and description files), camera shake, and the observation folder of DESIGN.md §6
+// with ground truth: the input of every deblurring method.
+//
+// Scene description files are YAML or JSON (read with OpenCV's FileStorage), e.g.
+//
+//   %YAML:1.0
+//   background: 0.1          # radiance where rays hit nothing
+//   colour: 0                # 1 for a colour scene
+//   objects:
+//     - { type: plane, center: [0, 0, 5], size: [12, 9], right: [1, 0, 0], down: [0, 1, 0],
+//         texture: { kind: noise, scale: 0.02, mean: 0.45, contrast: 0.7, seed: 1 } }
+//     - { type: box, center: [0.3, 0.1, 2.5], size: [0.8, 0.8, 0.8], rotation: [0.2, 0.5, 0],
+//         texture: { kind: checker, scale: 0.125 } }
+//     - { type: rgbd, image: photo.png, depth: depth.png, depth_scale: 0.001, disparity: 0,
+//         fx: 300, fy: 300, cx: 160, cy: 120 }
+//
+// Units are metres; the camera sits at the origin looking along +z (x right, y down) at
+// mid-exposure. Plane: centre, size (width along `right`, height along `down`). Box: centre, size,
+// rotation (axis-angle). Texture kinds: noise (scale = finest feature / texture size), stripes
+// (scale = period, angle), checker (scale = cell), text (text), image (path); mean, contrast, seed,
+// colour, resolution. rgbd: a colour image with a depth map (depth_scale converts the file's values
+// to metres; disparity: 1 means the file holds disparity d and depth = fx * baseline / d, with
+// `baseline`), seen from the origin with intrinsics fx fy cx cy (default: 0.9 width, centred).
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "evkit/events/frame_source.h"
+#include "evkit/spline/trajectory.h"
+#include "evkit/synth/scene.h"
+
+namespace evkit::synth {
+
+struct SceneOptions {
+  bool colour = false;
+  uint64_t seed = 1;
+  // For the rgbd preset: a colour image and a depth (or disparity) map; empty: procedural.
+  std::string rgbd_image, rgbd_depth;
+  double rgbd_depth_scale = 0.001;  // file units -> metres (16-bit PNG in mm)
+};
+
+// Presets: planes (4 textured planes at 1.6-6 m), box (a box on a slanted ground plane before a
+// wall), rgbd (a textured height field), ground (a slanted ground plane and a wall), text (a text
+// plane before a noise wall).
+std::vector<std::string> presetNames();
+Scene makePreset(const std::string& name, const SceneOptions& options);
+Scene loadScene(const std::string& path, const SceneOptions& options);
+
+// The default camera for an image size: fx = fy = 0.9 width, principal point at the centre.
+Calibration defaultCamera(int width, int height);
+
+struct ShakeOptions {
+  double blur_px = 30;  // the longest image path of a scene point during the exposure
+  int knots = 4;
+  double rotation_share = 0.7;  // of the motion's blur coming from rotation (the rest translation)
+  uint64_t seed = 1;
+};
+
+// Random smooth camera shake over [t_begin, t_end]: a cubic B-spline on SE(3) with random knots,
+// scaled so that blurLengthPx equals options.blur_px, and moved so that T(mid) = identity.
+Trajectory makeShake(const Scene& scene, const Calibration& camera, int width, int height, int64_t t_begin, int64_t t_end,
+                     const ShakeOptions& options);
+
+// The longest image-space path (pixels) of the scene points seen on an 8x6 grid at mid-exposure.
+double blurLengthPx(const Trajectory& trajectory, const Scene& scene, const Calibration& camera, int width, int height);
+
+struct SynthOptions {
+  int width = 346, height = 260;
+  int64_t t_begin_us = 1'600'000'000'000'000;  // absolute Unix µs
+  int64_t exposure_us = 100'000;
+  ShakeOptions shake;
+  SimulatorOptions simulator;
+  // Renders are spaced so that the image moves by at most this much between two (the simulator
+  // interpolates log intensity linearly in between). ESIM's rejection rule (AdaptiveOptions) is
+  // not used here: rendered occlusion edges are discontinuous in time and would drive it to its
+  // minimum step.
+  double max_motion_px = 0.1;
+  int supersample = 2;
+  int sharp_frames = 3;  // ground-truth sharp frames evenly over the exposure (start, ..., end)
+  int poses = 101;       // ground-truth poses (TUM)
+};
+
+struct SynthReport {
+  double blur_px = 0;
+  int64_t events = 0;
+  int64_t renders = 0;
+  double max_fraction_over_c = 0;
+};
+
+// Renders over the exposure, simulates the events, and writes the observation folder:
+// blurry.png (16-bit linear), exposure.txt, events.h5, calib.txt, contrast.txt, and gt/ with the
+// sharp frames (<t_us>.png), poses.txt (TUM, T_world_cam), knots.txt (the spline's knots, TUM at
+// the knot index), depth.npy (float32 metres at mid-exposure) and info.txt. The folder appears
+// complete or not at all.
+SynthReport writeObservation(const Scene& scene, const SynthOptions& options, const std::string& dir);
+
+// A named suite: scenes x blur levels, each an observation folder <dir>/<scene>_blur<px>.
+struct SuiteEntry {
+  std::string scene;
+  double blur_px;
+};
+std::vector<SuiteEntry> suiteEntries(const std::string& suite);  // "standard": 5 scenes x {15, 40} px
+
+}  // namespace evkit::synth

@@ -1,0 +1,176 @@
+#include "evkit/synth/generator.h"
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+
+#include "evkit/events/atomic_file.h"
+#include "evkit/events/error.h"
+#include "evkit/events/image_io.h"
+#include "evkit/events/io.h"
+#include "evkit/events/npy.h"
+#include "evkit/spline/tum.h"
+
+namespace evkit::synth {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+// The scene rendered along a trajectory: the simulator's programmatic source.
+class SceneSource final : public RenderSource {
+ public:
+  SceneSource(const Scene& scene, const Calibration& camera, int w, int h, const Trajectory& traj, int supersample)
+      : scene_(scene), camera_(camera), w_(w), h_(h), traj_(traj) {
+    options_.supersample = supersample;
+  }
+  SensorSize sensor() const override { return {w_, h_}; }
+  cv::Mat render(int64_t t_us) override {
+    ++renders_;
+    return synth::render(scene_, camera_, w_, h_, traj_.poseAt(t_us), options_);
+  }
+  int64_t renders() const { return renders_; }
+
+ private:
+  const Scene& scene_;
+  Calibration camera_;
+  int w_, h_;
+  const Trajectory& traj_;
+  RenderOptions options_;
+  int64_t renders_ = 0;
+};
+
+Trajectory scaled(const std::vector<Vector6>& xi, double s, int64_t t0, int64_t t1) {
+  std::vector<SE3> knots;
+  for (const Vector6& x : xi) knots.push_back(expSE3(s * x));
+  Trajectory traj(TrajectoryKind::kCubicSE3, t0, t1, knots);
+  // Re-centre so that the camera sits at the origin at mid-exposure: a left motion of all knots.
+  const SE3 mid_inv = traj.evaluate(0.5).inverse();
+  for (SE3& k : traj.knots()) k = mid_inv * k;
+  return traj;
+}
+
+}  // namespace
+
+double blurLengthPx(const Trajectory& trajectory, const Scene& scene, const Calibration& camera, int width, int height) {
+  const SE3 T_mid = trajectory.evaluate(0.5);
+  cv::Mat depth;
+  RenderOptions one;
+  one.supersample = 1;
+  render(scene, camera, width, height, T_mid, one, &depth);
+  double longest = 0;
+  constexpr int kSteps = 40;
+  for (int gy = 0; gy < 6; ++gy) {
+    for (int gx = 0; gx < 8; ++gx) {
+      const int x = (gx + 1) * width / 9, y = (gy + 1) * height / 7;
+      const float z = depth.at<float>(y, x);
+      if (z <= 0) continue;
+      const Vector3 X = T_mid * (z * Vector3((x - camera.cx) / camera.fx, (y - camera.cy) / camera.fy, 1.0));
+      double length = 0;
+      Eigen::Vector2d prev;
+      for (int k = 0; k <= kSteps; ++k) {
+        const Vector3 p = trajectory.evaluate(static_cast<double>(k) / kSteps).inverse() * X;
+        const Eigen::Vector2d uv(camera.fx * p.x() / p.z() + camera.cx, camera.fy * p.y() / p.z() + camera.cy);
+        if (k > 0) length += (uv - prev).norm();
+        prev = uv;
+      }
+      longest = std::max(longest, length);
+    }
+  }
+  return longest;
+}
+
+Trajectory makeShake(const Scene& scene, const Calibration& camera, int width, int height, int64_t t_begin, int64_t t_end,
+                     const ShakeOptions& options) {
+  std::mt19937_64 rng(options.seed * 0x9e3779b97f4a7c15ULL + 5);
+  std::normal_distribution<double> n;
+  // Knot tangents: rotation of ~0.01 rad, translation of ~1 cm, in random directions; the mix of
+  // rotation and translation follows rotation_share, then one scale sets the blur length.
+  std::vector<Vector6> xi;
+  for (int k = 0; k < std::max(4, options.knots); ++k) {
+    Vector6 v;
+    v << Vector3(n(rng), n(rng), 0.3 * n(rng)) * 0.01 * (1.0 - options.rotation_share),
+        Vector3(n(rng), n(rng), 0.3 * n(rng)) * 0.01 * options.rotation_share;
+    xi.push_back(v);
+  }
+  double s = 1.0;
+  for (int it = 0; it < 6; ++it) {
+    const double blur = blurLengthPx(scaled(xi, s, t_begin, t_end), scene, camera, width, height);
+    if (blur <= 0) throw Error("the scene is empty: no blur can be measured");
+    const double ratio = options.blur_px / blur;
+    s *= ratio;
+    if (std::abs(ratio - 1.0) < 1e-3) break;
+  }
+  return scaled(xi, s, t_begin, t_end);
+}
+
+SynthReport writeObservation(const Scene& scene, const SynthOptions& o, const std::string& dir) {
+  const Calibration camera = defaultCamera(o.width, o.height);
+  const int64_t t0 = o.t_begin_us, t1 = o.t_begin_us + o.exposure_us;
+  const Trajectory traj = makeShake(scene, camera, o.width, o.height, t0, t1, o.shake);
+  SynthReport report;
+  report.blur_px = blurLengthPx(traj, scene, camera, o.width, o.height);
+
+  AtomicPath out(dir);
+  const std::string tmp = out.temporaryPath();
+  fs::create_directories(tmp + "/gt");
+
+  // Events and the blurry frame: adaptive sampling of the rendered scene over the exposure.
+  SceneSource source(scene, camera, o.width, o.height, traj, o.supersample);
+  DriverOptions driver;
+  driver.simulator = o.simulator;
+  driver.exposures = {{t0, t1}};
+  auto writer = openWriter(tmp + "/events.h5", Format::kHdf5, SensorSize{o.width, o.height});
+  cv::Mat blurry;
+  AdaptiveOptions uniform;
+  uniform.lambda = 1e30;  // never reject: a fixed step from the blur length
+  uniform.min_step_us = uniform.max_step_us = std::clamp<int64_t>(
+      static_cast<int64_t>(static_cast<double>(t1 - t0) * o.max_motion_px / std::max(report.blur_px, 1e-9)), 1, (t1 - t0) / 50);
+  const SimulatorStats stats = simulateAdaptive(source, t0, t1, driver, uniform, [&](const EventStore& ev, const std::vector<Frame>& done) {
+    writer->write(ev.view());
+    if (!done.empty()) blurry = done.front().image;
+  });
+  writer->close();
+  report.events = stats.events;
+  report.renders = source.renders();
+  report.max_fraction_over_c = stats.max_fraction_over_c;
+  writeImageFile(tmp + "/blurry.png", blurry, 16);
+
+  std::ofstream(tmp + "/exposure.txt") << t0 << ' ' << t1 << '\n';
+  std::ofstream(tmp + "/contrast.txt") << o.simulator.contrast_pos << ' ' << o.simulator.contrast_neg << '\n';
+  writeCalibration(tmp + "/calib.txt", camera);
+
+  // Ground truth: sharp frames, poses, knots, depth at mid-exposure.
+  RenderOptions ro;
+  ro.supersample = o.supersample;
+  const int sharp = std::max(2, o.sharp_frames);
+  for (int k = 0; k < sharp; ++k) {
+    const int64_t t = t0 + (t1 - t0) * k / (sharp - 1);
+    writeImageFile(tmp + "/gt/" + std::to_string(t) + ".png", render(scene, camera, o.width, o.height, traj.poseAt(t), ro), 16);
+  }
+  const int64_t mid = t0 + (t1 - t0) / 2;
+  if (sharp % 2 == 0) writeImageFile(tmp + "/gt/" + std::to_string(mid) + ".png", render(scene, camera, o.width, o.height, traj.poseAt(mid), ro), 16);
+  std::vector<int64_t> times;
+  for (int k = 0; k < std::max(2, o.poses); ++k) times.push_back(t0 + (t1 - t0) * k / (std::max(2, o.poses) - 1));
+  writeTum(tmp + "/gt/poses.txt", sampleTrajectory(traj, times));
+  std::vector<StampedPose> knots;
+  for (size_t k = 0; k < traj.knots().size(); ++k) knots.push_back({static_cast<int64_t>(k), traj.knots()[k]});
+  writeTum(tmp + "/gt/knots.txt", knots);
+  cv::Mat depth;
+  RenderOptions single;
+  single.supersample = 1;
+  render(scene, camera, o.width, o.height, traj.poseAt(mid), single, &depth);
+  writeNpy(tmp + "/gt/depth.npy", depth.ptr<float>(), {static_cast<size_t>(o.height), static_cast<size_t>(o.width)});
+  std::ostringstream info;
+  info << "blur_px " << report.blur_px << "\nevents " << report.events << "\nrenders " << report.renders
+       << "\nmax_fraction_over_c " << report.max_fraction_over_c << "\nseed " << o.shake.seed << "\nknots_kind cubic\n"
+       << "knot_times " << t0 << ' ' << t1 << "\n";
+  std::ofstream(tmp + "/gt/info.txt") << info.str();
+  out.commit();
+  return report;
+}
+
+}  // namespace evkit::synth

@@ -1,0 +1,220 @@
+#include <cmath>
+#include <filesystem>
+
+#include <opencv2/core/persistence.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "evkit/events/error.h"
+#include "evkit/events/image_io.h"
+#include "evkit/synth/generator.h"
+
+namespace evkit::synth {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+std::shared_ptr<const Texture> texture(const std::string& kind, double scale, uint64_t seed, const SceneOptions& o,
+                                       double mean = 0.45, double contrast = 0.7) {
+  TextureSpec spec;
+  spec.kind = kind;
+  spec.scale = scale;
+  spec.seed = seed * 7919 + o.seed;
+  spec.colour = o.colour;
+  spec.mean = mean;
+  spec.contrast = contrast;
+  return std::make_shared<Texture>(makeTexture(spec));
+}
+
+Rectangle plane(const Vector3& center, double width, double height, std::shared_ptr<const Texture> tex,
+                const Vector3& right = Vector3::UnitX(), const Vector3& down = Vector3::UnitY()) {
+  return Rectangle{center, right.normalized(), down.normalized(), width, height, std::move(tex)};
+}
+
+// A slanted ground plane below the camera: y = +1.2 m at the camera, rising away.
+Rectangle ground(const SceneOptions& o, uint64_t seed) {
+  const Vector3 along = Vector3(0, -0.25, 1).normalized();
+  return plane(Vector3(0, 1.2 - 0.25 * 5, 5), 10, 10, texture("noise", 0.01, seed, o, 0.4, 0.6), Vector3::UnitX(), along);
+}
+
+HeightField proceduralHeightField(const SceneOptions& o) {
+  HeightField hf;
+  const int w = 480, h = 360;
+  TextureSpec spec;
+  spec.kind = "noise";
+  spec.scale = 0.01;
+  spec.resolution = 512;
+  spec.colour = o.colour;
+  spec.seed = o.seed + 101;
+  cv::resize(makeTexture(spec).image, hf.image, cv::Size(w, h), 0, 0, cv::INTER_AREA);
+  hf.depth.create(h, w, CV_32F);
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      const double u = (x - w / 2.0) / w, v = (y - h / 2.0) / h;
+      hf.depth.at<float>(y, x) = static_cast<float>(3.0 - 1.2 * std::exp(-((u + 0.15) * (u + 0.15) + v * v) / 0.02) -
+                                                    0.6 * std::exp(-((u - 0.25) * (u - 0.25) + (v + 0.1) * (v + 0.1)) / 0.01) +
+                                                    0.8 * v);
+    }
+  }
+  hf.intrinsics = defaultCamera(w, h);
+  return hf;
+}
+
+HeightField heightFieldFromFiles(const std::string& image, const std::string& depth_path, double scale, bool disparity,
+                                 double baseline, std::optional<Calibration> k, bool colour) {
+  HeightField hf;
+  hf.image = readImageFile(image).image;
+  if (!colour && hf.image.channels() == 3) cv::cvtColor(hf.image, hf.image, cv::COLOR_BGR2GRAY);
+  const cv::Mat raw = cv::imread(depth_path, cv::IMREAD_ANYDEPTH);
+  if (raw.empty()) throwInFile(depth_path, "not a readable depth image (16-bit PNG expected)");
+  if (raw.size() != hf.image.size()) throwInFile(depth_path, "depth map and image differ in size");
+  raw.convertTo(hf.depth, CV_32F, scale);
+  hf.intrinsics = k ? *k : defaultCamera(hf.image.cols, hf.image.rows);
+  if (disparity) {
+    for (int y = 0; y < hf.depth.rows; ++y) {
+      for (int x = 0; x < hf.depth.cols; ++x) {
+        float& d = hf.depth.at<float>(y, x);
+        d = d > 0 ? static_cast<float>(hf.intrinsics.fx * baseline / d) : 0.0f;
+      }
+    }
+  }
+  // Holes (0) take the farthest valid depth.
+  double zmin, zmax;
+  cv::minMaxLoc(hf.depth, &zmin, &zmax, nullptr, nullptr, hf.depth > 0);
+  if (!(zmax > 0)) throwInFile(depth_path, "no valid depth");
+  hf.depth.setTo(zmax, hf.depth <= 0);
+  return hf;
+}
+
+void finishHeightField(HeightField& hf) {
+  double zmin, zmax;
+  cv::minMaxLoc(hf.depth, &zmin, &zmax);
+  hf.z_min = zmin * 0.9;
+  hf.z_max = zmax * 1.05;
+}
+
+}  // namespace
+
+Calibration defaultCamera(int width, int height) {
+  return Calibration{0.9 * width, 0.9 * width, (width - 1) / 2.0, (height - 1) / 2.0, {}};
+}
+
+std::vector<std::string> presetNames() { return {"planes", "box", "rgbd", "ground", "text"}; }
+
+Scene makePreset(const std::string& name, const SceneOptions& o) {
+  Scene s;
+  s.colour = o.colour;
+  s.background = 0.1;
+  if (name == "planes") {
+    s.rectangles.push_back(plane(Vector3(0, 0, 6), 14, 11, texture("noise", 0.01, 1, o)));
+    s.rectangles.push_back(plane(Vector3(-0.9, -0.3, 3.5), 2.4, 2.0, texture("text", 0.1, 2, o, 0.5, 0.8)));
+    s.rectangles.push_back(plane(Vector3(0.8, 0.4, 2.2), 1.0, 1.4, texture("checker", 0.125, 3, o)));
+    s.rectangles.push_back(plane(Vector3(0.1, -0.45, 1.6), 0.5, 0.35, texture("stripes", 0.1, 4, o), Vector3(1, 0.3, 0), Vector3(-0.3, 1, 0)));
+  } else if (name == "box") {
+    s.rectangles.push_back(plane(Vector3(0, 0, 5), 12, 9, texture("noise", 0.015, 1, o)));
+    s.rectangles.push_back(ground(o, 2));
+    s.addBox(Vector3(0.2, 0.1, 2.6), Vector3(0.9, 0.9, 0.9), Vector3(0.25, 0.6, 0.1), texture("checker", 0.1, 3, o, 0.5, 0.8));
+    s.addBox(Vector3(-0.9, 0.4, 3.2), Vector3(0.5, 0.8, 0.5), Vector3(0, -0.4, 0), texture("noise", 0.05, 4, o));
+  } else if (name == "rgbd") {
+    if (o.rgbd_image.empty() != o.rgbd_depth.empty()) throw Error("the rgbd preset needs both --image and --depth, or neither");
+    s.height_field = o.rgbd_image.empty()
+                         ? proceduralHeightField(o)
+                         : heightFieldFromFiles(o.rgbd_image, o.rgbd_depth, o.rgbd_depth_scale, false, 0, std::nullopt, o.colour);
+    finishHeightField(*s.height_field);
+  } else if (name == "ground") {
+    s.rectangles.push_back(plane(Vector3(0, -1, 7), 16, 8, texture("stripes", 0.05, 1, o)));
+    s.rectangles.push_back(ground(o, 5));
+  } else if (name == "text") {
+    s.rectangles.push_back(plane(Vector3(0, 0, 4.5), 10, 8, texture("noise", 0.02, 1, o, 0.35, 0.5)));
+    s.rectangles.push_back(plane(Vector3(0, 0, 2.0), 2.0, 1.5, texture("text", 0.1, 6, o, 0.5, 0.9)));
+  } else {
+    std::string known;
+    for (const std::string& p : presetNames()) known += (known.empty() ? "" : ", ") + p;
+    throw Error("unknown preset '" + name + "' (known: " + known + ")");
+  }
+  return s;
+}
+
+Scene loadScene(const std::string& path, const SceneOptions& options) {
+  if (!fs::is_regular_file(path)) throwInFile(path, "no such scene file");
+  cv::FileStorage fsx;
+  try {
+    fsx.open(path, cv::FileStorage::READ);
+  } catch (const cv::Exception& e) {
+    throwInFile(path, std::string("not a readable YAML/JSON scene: ") + e.what());
+  }
+  if (!fsx.isOpened()) throwInFile(path, "not a readable YAML/JSON scene");
+  Scene s;
+  s.background = fsx["background"].empty() ? 0.1 : static_cast<double>(fsx["background"]);
+  s.colour = fsx["colour"].empty() ? options.colour : static_cast<int>(fsx["colour"]) != 0;
+  const auto vec3 = [&](const cv::FileNode& n, const char* key, Vector3 fallback) {
+    const cv::FileNode v = n[key];
+    if (v.empty()) return fallback;
+    if (!v.isSeq() || v.size() != 3) throwInFile(path, std::string("'") + key + "' must be a list of 3 numbers");
+    return Vector3(static_cast<double>(v[0]), static_cast<double>(v[1]), static_cast<double>(v[2]));
+  };
+  const auto num = [&](const cv::FileNode& n, const char* key, double fallback) {
+    return n[key].empty() ? fallback : static_cast<double>(n[key]);
+  };
+  const auto str = [&](const cv::FileNode& n, const char* key, const std::string& fallback) {
+    return n[key].empty() ? fallback : static_cast<std::string>(n[key]);
+  };
+  const auto resolve = [&](const std::string& p) { return fs::path(p).is_absolute() ? p : (fs::path(path).parent_path() / p).string(); };
+  const cv::FileNode objects = fsx["objects"];
+  if (!objects.isSeq() || objects.size() == 0) throwInFile(path, "no 'objects' list");
+  int index = 0;
+  for (const cv::FileNode& obj : objects) {
+    const std::string type = str(obj, "type", "");
+    const std::string where = "object " + std::to_string(index++);
+    TextureSpec spec;
+    const cv::FileNode t = obj["texture"];
+    if (!t.empty()) {
+      spec.kind = str(t, "kind", spec.kind);
+      spec.scale = num(t, "scale", spec.scale);
+      spec.mean = num(t, "mean", spec.mean);
+      spec.contrast = num(t, "contrast", spec.contrast);
+      spec.angle = num(t, "angle", spec.angle);
+      spec.text = str(t, "text", spec.text);
+      spec.path = t["path"].empty() ? "" : resolve(str(t, "path", ""));
+      spec.seed = static_cast<uint64_t>(num(t, "seed", static_cast<double>(index))) + options.seed;
+      spec.resolution = static_cast<int>(num(t, "resolution", spec.resolution));
+    }
+    spec.colour = s.colour;
+    try {
+      if (type == "plane") {
+        const cv::FileNode sz = obj["size"];
+        if (!sz.isSeq() || sz.size() != 2) throwInFile(path, where + ": plane 'size' must be [width, height]");
+        s.rectangles.push_back(plane(vec3(obj, "center", Vector3(0, 0, 5)), static_cast<double>(sz[0]), static_cast<double>(sz[1]),
+                                     std::make_shared<Texture>(makeTexture(spec)), vec3(obj, "right", Vector3::UnitX()),
+                                     vec3(obj, "down", Vector3::UnitY())));
+      } else if (type == "box") {
+        s.addBox(vec3(obj, "center", Vector3(0, 0, 3)), vec3(obj, "size", Vector3(1, 1, 1)), vec3(obj, "rotation", Vector3::Zero()),
+                 std::make_shared<Texture>(makeTexture(spec)));
+      } else if (type == "rgbd") {
+        std::optional<Calibration> k;
+        if (!obj["fx"].empty()) k = Calibration{num(obj, "fx", 0), num(obj, "fy", 0), num(obj, "cx", 0), num(obj, "cy", 0), {}};
+        s.height_field = heightFieldFromFiles(resolve(str(obj, "image", "")), resolve(str(obj, "depth", "")),
+                                              num(obj, "depth_scale", 0.001), num(obj, "disparity", 0) != 0,
+                                              num(obj, "baseline", 0.1), k, s.colour);
+        finishHeightField(*s.height_field);
+      } else {
+        throwInFile(path, where + ": unknown type '" + type + "' (known: plane, box, rgbd)");
+      }
+    } catch (const cv::Exception& e) {
+      throwInFile(path, where + ": " + e.what());
+    }
+  }
+  return s;
+}
+
+std::vector<SuiteEntry> suiteEntries(const std::string& suite) {
+  if (suite != "standard") throw Error("unknown suite '" + suite + "' (known: standard)");
+  std::vector<SuiteEntry> entries;
+  for (const std::string& scene : presetNames()) {
+    for (double blur : {15.0, 40.0}) entries.push_back({scene, blur});
+  }
+  return entries;
+}
+
+}  // namespace evkit::synth
