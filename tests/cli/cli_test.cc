@@ -197,6 +197,25 @@ TEST(Cli, SimulateReportsMissingFramesAndBadOptions) {
   EXPECT_EQ(r.exit_code, 2) << r.err;
 }
 
+TEST(Cli, SynthWritesAnObservationFolder) {
+  ScratchDir dir;
+  RunResult r = runEvkit("synth --preset box --size 64x48 --blur-px 6 --exposure-us 20000 --seed 3 --out " + (dir / "obs"), dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.err.find("blur   6.0 px"), std::string::npos) << r.err;
+  for (const char* f : {"blurry.png", "events.h5", "calib.txt", "exposure.txt", "contrast.txt", "gt/poses.txt", "gt/depth.npy"}) {
+    EXPECT_TRUE(test::fs::exists(dir / (std::string("obs/") + f))) << f;
+  }
+  EXPECT_EQ(test::readText(dir / "obs/contrast.txt"), "0.2 0.2\n");
+  r = runEvkit("synth --preset sphere --out " + (dir / "x"), dir);
+  EXPECT_EQ(r.exit_code, 2) << r.err;
+  EXPECT_NE(r.err.find("unknown preset 'sphere'"), std::string::npos) << r.err;
+  r = runEvkit("synth --preset box --suite standard --out " + (dir / "x"), dir);
+  EXPECT_EQ(r.exit_code, 2) << r.err;
+  r = runEvkit("synth --scene " + (dir / "missing.yaml") + " --out " + (dir / "x"), dir);
+  EXPECT_EQ(r.exit_code, 1) << r.err;
+  EXPECT_FALSE(test::fs::exists(dir / "x"));
+}
+
 TEST(Cli, DemoRunsTheDefaultJob) {
   ScratchDir dir;
   const RunResult r = runEvkit("demo --events 30000 --out " + (dir / "demo"), dir);

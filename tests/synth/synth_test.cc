@@ -1,0 +1,156 @@
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "evkit/events/error.h"
+#include "evkit/events/image_io.h"
+#include "evkit/events/io.h"
+#include "evkit/spline/tum.h"
+#include "evkit/synth/generator.h"
+#include "test_util.h"
+
+#include <opencv2/imgproc.hpp>
+
+namespace evkit::synth {
+namespace {
+
+using test::ScratchDir;
+
+SynthOptions small(double blur_px) {
+  SynthOptions o;
+  o.width = 64;
+  o.height = 48;
+  o.exposure_us = 40000;
+  o.shake.blur_px = blur_px;
+  o.poses = 161;
+  return o;
+}
+
+TEST(Synth, IdentityPoseFrontoParallelPlaneReproducesTheTexture) {
+  const int w = 40, h = 30;
+  const Calibration cam = defaultCamera(w, h);
+  auto tex = std::make_shared<Texture>();
+  tex->image = cv::Mat(h, w, CV_32F);
+  cv::randu(tex->image, 0.0, 1.0);
+  // A plane at depth z that exactly covers the field of view: texel (x, y) under pixel (x, y).
+  const double z = 2.5;
+  Scene scene;
+  scene.rectangles.emplace_back(Vector3(z * ((w - 1) / 2.0 - cam.cx) / cam.fx, z * ((h - 1) / 2.0 - cam.cy) / cam.fy, z),
+                                Vector3::UnitX(), Vector3::UnitY(), z * w / cam.fx, z * h / cam.fy, tex);
+  RenderOptions one;
+  one.supersample = 1;
+  cv::Mat depth;
+  const cv::Mat img = render(scene, cam, w, h, SE3(), one, &depth);
+  EXPECT_LT(cv::norm(img - tex->image, cv::NORM_INF), 1e-5);
+  EXPECT_LT(cv::norm(depth - z, cv::NORM_INF), 1e-9 + 1e-6);
+}
+
+TEST(Synth, ShakeHasTheRequestedBlurAndIsCentredAtMidExposure) {
+  const Scene scene = makePreset("planes", {});
+  const Calibration cam = defaultCamera(120, 90);
+  for (double blur : {2.0, 15.0, 60.0}) {
+    ShakeOptions s;
+    s.blur_px = blur;
+    const Trajectory traj = makeShake(scene, cam, 120, 90, 0, 100000, s);
+    EXPECT_NEAR(blurLengthPx(traj, scene, cam, 120, 90), blur, 0.01 * blur);
+    EXPECT_LT((traj.evaluate(0.5).matrix() - Eigen::Matrix4d::Identity()).cwiseAbs().maxCoeff(), 1e-12);
+  }
+}
+
+// The observation folder: blurry frame = mean of dense sharp frames; events = the simulator's
+// invariant between the ground-truth frames at the exposure's start and end; deterministic.
+TEST(Synth, ObservationFolderIsConsistentWithItsGroundTruth) {
+  ScratchDir dir;
+  const Scene scene = makePreset("text", {});
+  const SynthOptions o = small(8.0);
+  const SynthReport report = writeObservation(scene, o, dir / "obs");
+  EXPECT_NEAR(report.blur_px, 8.0, 0.1);
+  for (const char* f : {"blurry.png", "exposure.txt", "events.h5", "calib.txt", "contrast.txt", "gt/poses.txt", "gt/knots.txt",
+                        "gt/depth.npy", "gt/info.txt"}) {
+    EXPECT_TRUE(test::fs::exists(dir / (std::string("obs/") + f))) << f;
+  }
+  const int64_t t0 = o.t_begin_us, t1 = t0 + o.exposure_us;
+  EXPECT_EQ(test::readText(dir / "obs/exposure.txt"), std::to_string(t0) + " " + std::to_string(t1) + "\n");
+
+  // Blurry frame against the trapezoidal mean of 161 renders at the true poses.
+  const std::vector<StampedPose> poses = readTum(dir / "obs/gt/poses.txt");
+  ASSERT_EQ(poses.size(), 161u);
+  const Calibration cam = readCalibration(dir / "obs/calib.txt");
+  cv::Mat mean = cv::Mat::zeros(o.height, o.width, CV_32F);
+  for (size_t k = 0; k < poses.size(); ++k) {
+    const double w = (k == 0 || k + 1 == poses.size()) ? 0.5 : 1.0;
+    mean += w * render(scene, cam, o.width, o.height, poses[k].pose, RenderOptions{o.supersample});
+  }
+  mean /= static_cast<double>(poses.size() - 1);
+  const Frame blurry = readImageFile(dir / "obs/blurry.png");
+  EXPECT_EQ(blurry.bit_depth, 16);
+  cv::Mat diff = cv::abs(blurry.image - mean);
+  EXPECT_LT(cv::mean(diff)[0], 2e-3);
+  EXPECT_LT(cv::norm(diff, cv::NORM_INF), 2e-2);
+
+  // Events: |L(t0) + sum p C - L(t1)| <= C at every pixel (sigma = 0), with the frames' log.
+  const Recording rec = readRecording(dir / "obs/events.h5");
+  EXPECT_EQ(rec.events.size(), static_cast<size_t>(report.events));
+  ASSERT_GT(rec.events.size(), 1000u);
+  EXPECT_GE(rec.events.t.front(), t0);
+  EXPECT_LE(rec.events.t.back(), t1);
+  const cv::Mat start = readImageFile(dir / ("obs/gt/" + std::to_string(t0) + ".png")).image;
+  const cv::Mat end = readImageFile(dir / ("obs/gt/" + std::to_string(t1) + ".png")).image;
+  cv::Mat sum = cv::Mat::zeros(o.height, o.width, CV_32F);
+  for (size_t e = 0; e < rec.events.size(); ++e) sum.at<float>(rec.events.y[e], rec.events.x[e]) += 0.2f * rec.events.p[e];
+  const LogMapping log;
+  int violations = 0;
+  for (int y = 0; y < o.height; ++y) {
+    for (int x = 0; x < o.width; ++x) {
+      const double r = log.toLog(start.at<float>(y, x)) + sum.at<float>(y, x) - log.toLog(end.at<float>(y, x));
+      violations += std::abs(r) > 0.2 + 0.02;  // 16-bit quantisation of the frames
+    }
+  }
+  EXPECT_EQ(violations, 0);
+
+  // Same seed, same bytes.
+  writeObservation(scene, o, dir / "again");
+  EXPECT_EQ(test::readText(dir / "obs/blurry.png"), test::readText(dir / "again/blurry.png"));
+  const Recording again = readRecording(dir / "again/events.h5");
+  EXPECT_TRUE(again.events.t == rec.events.t && again.events.x == rec.events.x && again.events.p == rec.events.p);
+}
+
+TEST(Synth, RgbdPresetAndSceneFiles) {
+  ScratchDir dir;
+  const Scene rgbd = makePreset("rgbd", {});
+  ASSERT_TRUE(rgbd.height_field.has_value());
+  const Calibration cam = defaultCamera(48, 36);
+  cv::Mat depth;
+  const cv::Mat img = render(rgbd, cam, 48, 36, SE3(), {}, &depth);
+  EXPECT_TRUE(cv::checkRange(img));
+  // At the identity pose the first hit lies on the height field: its depth at the same ray.
+  const HeightField& hf = *rgbd.height_field;
+  for (const auto& [x, y] : std::vector<std::pair<int, int>>{{24, 18}, {5, 30}, {40, 3}}) {
+    // Pixel (x, y) looks along ((x - cx)/fx, (y - cy)/fy, 1): where that ray meets the source image.
+    const double u = hf.intrinsics.fx * (x - cam.cx) / cam.fx + hf.intrinsics.cx;
+    const double v = hf.intrinsics.fy * (y - cam.cy) / cam.fy + hf.intrinsics.cy;
+    cv::Mat patch;
+    cv::getRectSubPix(hf.depth, cv::Size(1, 1), cv::Point2f(static_cast<float>(u), static_cast<float>(v)), patch);
+    EXPECT_NEAR(depth.at<float>(y, x), patch.at<float>(0, 0), 1e-3) << x << ", " << y;
+  }
+
+  test::writeText(dir / "scene.yaml",
+                  "%YAML:1.0\nbackground: 0.2\nobjects:\n"
+                  "  - { type: plane, center: [0, 0, 3], size: [6, 4], texture: { kind: checker, scale: 0.25 } }\n"
+                  "  - { type: box, center: [0, 0, 2], size: [0.4, 0.4, 0.4], rotation: [0, 0.3, 0], texture: { kind: stripes } }\n");
+  const Scene scene = loadScene(dir / "scene.yaml", {});
+  EXPECT_EQ(scene.rectangles.size(), 7u);
+  EXPECT_DOUBLE_EQ(scene.background, 0.2);
+  test::writeText(dir / "bad.yaml", "%YAML:1.0\nobjects:\n  - { type: cone, center: [0, 0, 3] }\n");
+  try {
+    loadScene(dir / "bad.yaml", {});
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("object 0: unknown type 'cone'"), std::string::npos) << e.what();
+  }
+  EXPECT_THROW(makePreset("nope", {}), Error);
+  EXPECT_EQ(suiteEntries("standard").size(), 10u);
+}
+
+}  // namespace
+}  // namespace evkit::synth
