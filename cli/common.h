@@ -73,6 +73,9 @@ int runDemo(const Args& args);
 int runFrames(const Args& args);
 int runSimulate(const Args& args);
 int runSynth(const Args& args);
+int runDeblur(const Args& args);
+int runCompare(const Args& args);
+int runMetrics(const Args& args);
 
 // Building blocks the demo reuses.
 void printInfo(const std::string& path, std::optional<Format> format);

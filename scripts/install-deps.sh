@@ -7,7 +7,7 @@ packages=(
   build-essential cmake ninja-build pkg-config
   libeigen3-dev libboost-program-options-dev
   libhdf5-dev hdf5-filter-plugin hdf5-filter-plugin-blosc-serial
-  libopencv-dev libopencv-contrib-dev
+  libopencv-dev libopencv-contrib-dev opencv-data
   liblz4-dev libzstd-dev libflatbuffers-dev flatbuffers-compiler
   libgtest-dev libgmock-dev libbenchmark-dev
   clang libclang-rt-14-dev

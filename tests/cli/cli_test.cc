@@ -216,6 +216,55 @@ TEST(Cli, SynthWritesAnObservationFolder) {
   EXPECT_FALSE(test::fs::exists(dir / "x"));
 }
 
+TEST(Cli, DeblurCompareAndMetricsOnASyntheticObservation) {
+  ScratchDir dir;
+  RunResult r = runEvkit("synth --preset text --size 80x60 --blur-px 8 --exposure-us 20000 --out " + (dir / "obs"), dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  r = runEvkit("deblur " + (dir / "obs") + " --method edi --frames 3 --out " + (dir / "edi"), dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.err.find("edi: 3 frames"), std::string::npos) << r.err;  // start, middle, end (= gt times)
+  const std::string summary = test::readText(dir / "edi/summary.json");
+  EXPECT_NE(summary.find("\"method\": \"edi\""), std::string::npos) << summary;
+  EXPECT_NE(summary.find("\"psnr_mid\": "), std::string::npos);
+  EXPECT_EQ(summary.find("\"psnr_mid\": null"), std::string::npos) << summary;
+  EXPECT_TRUE(test::fs::exists(dir / "edi/latent.avi"));
+  EXPECT_TRUE(test::fs::exists(dir / "edi/1600000000010000.png"));
+  r = runEvkit("compare " + (dir / "obs") + " --methods blurry,edi --out " + (dir / "cmp"), dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("blurry"), std::string::npos);
+  EXPECT_NE(r.out.find("edi"), std::string::npos);
+  EXPECT_TRUE(test::fs::exists(dir / "cmp/side_by_side.png"));
+  r = runEvkit("metrics " + (dir / "edi/1600000000010000.png") + " " + (dir / "obs/gt/1600000000010000.png"), dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("PSNR"), std::string::npos);
+  EXPECT_NE(r.out.find("BRISQUE"), std::string::npos);
+  // Mistakes: unknown method or setting (2), missing folder (1), times outside the exposure (2).
+  EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --method magic --out " + (dir / "x"), dir).exit_code, 2);
+  EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --set speed=11 --out " + (dir / "x"), dir).exit_code, 2);
+  EXPECT_EQ(runEvkit("deblur " + (dir / "nothing") + " --out " + (dir / "x"), dir).exit_code, 1);
+  EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --times 5 --out " + (dir / "x"), dir).exit_code, 2);
+  EXPECT_FALSE(test::fs::exists(dir / "x"));
+}
+
+TEST(Cli, DeblurStraightFromARecordingWithExtract) {
+  ScratchDir dir;
+  Recording rec;
+  rec.events = randomEvents({});
+  Frame f;
+  f.image = cv::Mat(260, 346, CV_32F, cv::Scalar(0.4));
+  f.exposure_start_us = rec.events.t[1000];
+  f.exposure_end_us = rec.events.t[20000];
+  rec.frames.push_back(f);
+  writeRecording(dir / "rec.h5", rec);
+  const RunResult r = runEvkit("deblur --recording " + (dir / "rec.h5") + " --frame 0 --extract " + (dir / "obs") +
+                                   " --set contrast=0.2 --out " + (dir / "out"),
+                               dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_TRUE(test::fs::exists(dir / "obs/events.h5"));
+  EXPECT_EQ(readRecording(dir / "obs/events.h5").events.size(), rec.events.sliceTime(f.exposure_start_us, f.exposure_end_us + 1).size());
+  EXPECT_EQ(runEvkit("deblur --recording " + (dir / "rec.h5") + " --frame 4 --out " + (dir / "o2"), dir).exit_code, 1);
+}
+
 TEST(Cli, DemoRunsTheDefaultJob) {
   ScratchDir dir;
   const RunResult r = runEvkit("demo --events 30000 --out " + (dir / "demo"), dir);

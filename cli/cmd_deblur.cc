@@ -1,0 +1,203 @@
+// evkit deblur / compare / metrics.
+
+#include <cmath>
+#include <cstdio>
+#include <iostream>
+
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "common.h"
+#include "deblur_runner.h"
+#include "evkit/deblur/metrics.h"
+#include "evkit/deblur/observation.h"
+#include "evkit/events/error.h"
+#include "evkit/events/image_io.h"
+
+namespace evkit::cli {
+
+namespace {
+
+MethodSettings parseSettings(const po::variables_map& vm) {
+  MethodSettings settings;
+  if (!vm.count("set")) return settings;
+  for (const std::string& kv : vm["set"].as<std::vector<std::string>>()) {
+    const size_t eq = kv.find('=');
+    if (eq == std::string::npos || eq == 0) throw UsageError("--set: expected KEY=VALUE, got '" + kv + "'");
+    settings[kv.substr(0, eq)] = kv.substr(eq + 1);
+  }
+  return settings;
+}
+
+DeblurRequest parseTimes(const po::variables_map& vm, const Observation& obs) {
+  if (!vm.count("times")) return defaultRequest(obs, vm["frames"].as<int>());
+  DeblurRequest r;
+  for (const std::string& t : vm["times"].as<std::vector<std::string>>()) {
+    const TimeValue v = parseTimeValue(t, "times");
+    const int64_t us = v.relative ? obs.blurry.exposure_start_us + v.us : v.us;
+    if (us < obs.blurry.exposure_start_us || us > obs.blurry.exposure_end_us) {
+      throw UsageError("--times: " + t + " lies outside the exposure [" + std::to_string(obs.blurry.exposure_start_us) + ", " +
+                       std::to_string(obs.blurry.exposure_end_us) + "]");
+    }
+    r.times_us.push_back(us);
+  }
+  return r;
+}
+
+Observation loadInput(const po::variables_map& vm) {
+  if (vm.count("recording")) {
+    if (vm.count("observation")) throw UsageError("give an observation folder or --recording, not both");
+    if (!vm.count("frame")) throw UsageError("--recording needs --frame N");
+    Observation obs = observationFromRecording(vm["recording"].as<std::string>(), vm["frame"].as<size_t>(),
+                                               parseTimeValue(vm["margin"].as<std::string>(), "margin").us);
+    if (vm.count("extract")) {
+      saveObservation(obs, vm["extract"].as<std::string>());
+      std::cerr << "extracted " << obs.source << " to " << vm["extract"].as<std::string>() << "\n";
+    }
+    return obs;
+  }
+  if (!vm.count("observation")) throw UsageError("give an observation folder, or --recording FILE --frame N");
+  return loadObservation(vm["observation"].as<std::string>());
+}
+
+void addInputOptions(po::options_description& opts) {
+  opts.add_options()("observation", po::value<std::string>(), "observation folder (blurry.png, exposure.txt, events.*, calib.txt)")(
+      "recording", po::value<std::string>(), "instead: a recording with frames")(
+      "frame", po::value<size_t>(), "with --recording: the frame's index")(
+      "margin", po::value<std::string>()->default_value("0us"), "with --recording: events this far beyond the exposure")(
+      "extract", po::value<std::string>(), "with --recording: also write the observation folder here")(
+      "times", po::value<std::vector<std::string>>()->multitoken(), "latent frame times (µs, or +offset into the exposure)")(
+      "frames", po::value<int>()->default_value(5), "without --times: this many evenly spaced latent frames (+ the middle)");
+}
+
+std::string fmt(double v, const char* format) {
+  if (!std::isfinite(v)) return "-";
+  char buf[32];
+  std::snprintf(buf, sizeof(buf), format, v);
+  return buf;
+}
+
+cv::Mat labelled(const cv::Mat& linear, const std::string& label, int channels) {
+  cv::Mat img = quantize(linear, 8);
+  if (img.channels() == 1 && channels == 3) cv::cvtColor(img, img, cv::COLOR_GRAY2BGR);
+  if (img.channels() == 1) cv::cvtColor(img, img, cv::COLOR_GRAY2BGR);
+  cv::Mat out(img.rows + 22, img.cols, CV_8UC3, cv::Scalar(255, 255, 255));
+  img.copyTo(out(cv::Rect(0, 22, img.cols, img.rows)));
+  cv::putText(out, label, cv::Point(4, 16), cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+  return out;
+}
+
+}  // namespace
+
+int runDeblur(const Args& args) {
+  po::options_description opts("options");
+  addInputOptions(opts);
+  opts.add_options()("method", po::value<std::string>()->default_value("edi"), "blurry or edi")(
+      "set", po::value<std::vector<std::string>>()->composing(), "method setting KEY=VALUE (repeatable; edi: contrast, search, c_min, c_max, margin_us)")(
+      "out", po::value<std::string>()->required(), "output folder");
+  po::positional_options_description pos;
+  pos.add("observation", 1);
+  po::variables_map vm;
+  if (!parseArgs(args, "usage: evkit deblur OBS --method M --out DIR  |  evkit deblur --recording FILE --frame N --out DIR", opts, pos, vm)) {
+    return kExitOk;
+  }
+  const Observation obs = loadInput(vm);
+  const std::string method = vm["method"].as<std::string>();
+  MethodSettings settings = parseSettings(vm);
+  try {
+    makeDeblurrer(method, settings);
+  } catch (const Error& e) {
+    throw UsageError(e.what());
+  }
+  const DeblurRequest request = completeRequest(obs, parseTimes(vm, obs));
+  const MethodReport r = runMethod(obs, method, settings, request, vm["out"].as<std::string>());
+  std::cerr << method << ": " << r.result.frames.size() << " frames in " << fmt(r.wall_s, "%.3f") << " s; PSNR(mid) "
+            << fmt(r.psnr_mid, "%.2f") << " dB, SSIM(mid) " << fmt(r.ssim_mid, "%.4f") << ", BRISQUE(mid) " << fmt(r.brisque_mid, "%.1f")
+            << " -> " << vm["out"].as<std::string>() << "\n";
+  return kExitOk;
+}
+
+int runCompare(const Args& args) {
+  po::options_description opts("options");
+  addInputOptions(opts);
+  opts.add_options()("methods", po::value<std::string>()->default_value("blurry,edi"), "comma-separated methods")(
+      "set", po::value<std::vector<std::string>>()->composing(), "METHOD.KEY=VALUE settings (e.g. edi.contrast=0.2)")(
+      "out", po::value<std::string>(), "folder for each method's output and side_by_side.png");
+  po::positional_options_description pos;
+  pos.add("observation", 1);
+  po::variables_map vm;
+  if (!parseArgs(args, "usage: evkit compare OBS [--methods blurry,edi] [--out DIR]", opts, pos, vm)) return kExitOk;
+  std::vector<std::string> methods;
+  std::string list = vm["methods"].as<std::string>();
+  for (size_t start = 0; start <= list.size();) {
+    const size_t comma = std::min(list.find(',', start), list.size());
+    if (comma > start) methods.push_back(list.substr(start, comma - start));
+    start = comma + 1;
+  }
+  std::map<std::string, MethodSettings> settings;
+  for (const auto& [key, value] : parseSettings(vm)) {
+    const size_t dot = key.find('.');
+    if (dot == std::string::npos) throw UsageError("--set: expected METHOD.KEY=VALUE, got '" + key + "'");
+    settings[key.substr(0, dot)][key.substr(dot + 1)] = value;
+  }
+  for (const std::string& m : methods) {
+    try {
+      makeDeblurrer(m, settings[m]);
+    } catch (const Error& e) {
+      throw UsageError(e.what());
+    }
+  }
+  const Observation obs = loadInput(vm);
+  const DeblurRequest request = completeRequest(obs, parseTimes(vm, obs));
+  const std::string out = vm.count("out") ? vm["out"].as<std::string>() : "";
+  std::vector<MethodReport> reports;
+  std::printf("%-10s %10s %8s %10s %11s\n", "method", "PSNR(mid)", "SSIM", "BRISQUE", "wall time");
+  for (const std::string& m : methods) {
+    try {
+      reports.push_back(runMethod(obs, m, settings[m], request, out.empty() ? "" : out + "/" + m));
+    } catch (const Error& e) {
+      std::fprintf(stderr, "evkit compare: %s failed: %s (the other methods' results are kept)\n", m.c_str(), e.what());
+      continue;
+    }
+    const MethodReport& r = reports.back();
+    std::printf("%-10s %10s %8s %10s %10ss\n", m.c_str(), fmt(r.psnr_mid, "%.2f").c_str(), fmt(r.ssim_mid, "%.4f").c_str(),
+                fmt(r.brisque_mid, "%.1f").c_str(), fmt(r.wall_s, "%.3f").c_str());
+    std::fflush(stdout);
+  }
+  if (!out.empty() && !reports.empty()) {
+    std::vector<cv::Mat> tiles;
+    const int channels = obs.blurry.image.channels();
+    const int64_t mid = obs.blurry.exposure_start_us + (obs.blurry.exposure_end_us - obs.blurry.exposure_start_us) / 2;
+    for (const MethodReport& r : reports) tiles.push_back(labelled(r.mid, r.method + (std::isfinite(r.psnr_mid) ? " " + fmt(r.psnr_mid, "%.2f") + " dB" : ""), channels));
+    for (const Frame& g : obs.gt_frames) {
+      if (g.exposure_start_us == mid) tiles.push_back(labelled(g.image, "ground truth", channels));
+    }
+    cv::Mat side;
+    cv::hconcat(tiles, side);
+    if (!cv::imwrite(out + "/side_by_side.png", side)) throwInFile(out + "/side_by_side.png", "cannot write image");
+    std::cerr << "wrote " << out << "/side_by_side.png\n";
+  }
+  return reports.size() == methods.size() ? kExitOk : kExitInputError;
+}
+
+int runMetrics(const Args& args) {
+  po::options_description opts("options");
+  opts.add_options()("image", po::value<std::string>()->required(), "image to score")(
+      "reference", po::value<std::string>(), "reference image (PSNR, SSIM); without it only BRISQUE");
+  po::positional_options_description pos;
+  pos.add("image", 1).add("reference", 1);
+  po::variables_map vm;
+  if (!parseArgs(args, "usage: evkit metrics IMAGE [REFERENCE]", opts, pos, vm)) return kExitOk;
+  const Frame a = readImageFile(vm["image"].as<std::string>());
+  if (vm.count("reference")) {
+    const Frame b = readImageFile(vm["reference"].as<std::string>());
+    if (a.image.size() != b.image.size() || a.image.channels() != b.image.channels()) {
+      throw Error(vm["image"].as<std::string>() + ": size or channels differ from " + vm["reference"].as<std::string>());
+    }
+    std::printf("PSNR    %.3f dB\nSSIM    %.5f\n", psnr(a.image, b.image), ssim(a.image, b.image));
+  }
+  std::printf("BRISQUE %.2f\n", brisque(a.image));
+  return kExitOk;
+}
+
+}  // namespace evkit::cli

@@ -1,0 +1,33 @@
+// Running a deblurring method on an observation and writing what it produced: the sharp frames,
+// a latent video, the trajectory, and a JSON summary with timings and metrics against gt/.
+#pragma once
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "evkit/deblur/deblurrer.h"
+
+namespace evkit::cli {
+
+struct MethodReport {
+  std::string method;
+  DeblurResult result;
+  double wall_s = 0;
+  // Against the ground-truth frame at mid-exposure (NaN without one); BRISQUE of the mid frame.
+  double psnr_mid = std::nan(""), ssim_mid = std::nan(""), brisque_mid = std::nan("");
+  double psnr_mean = std::nan(""), ssim_mean = std::nan("");  // over every gt time
+  cv::Mat mid;  // the frame at mid-exposure
+};
+
+// Adds the ground truth's times to the request (so that metrics exist) and the middle.
+DeblurRequest completeRequest(const Observation& obs, DeblurRequest request);
+
+// Runs `method` and, when out_dir is not empty, writes <t_us>.png (linear, the input's bit depth),
+// latent.avi (sRGB-encoded for viewing), trajectory.txt (TUM) and summary.json into it.
+MethodReport runMethod(const Observation& obs, const std::string& method, const MethodSettings& settings,
+                       const DeblurRequest& request, const std::string& out_dir);
+
+std::string frameName(int64_t t_us);
+
+}  // namespace evkit::cli

@@ -1,0 +1,46 @@
+// One interface for every deblurring method: input an Observation, request the timestamps wanted,
+// get one sharp image per timestamp (float32 linear [0,1], the blurry frame's channels), the
+// camera trajectory where the method estimates one, and timings. Methods are made by name.
+#pragma once
+
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "evkit/deblur/observation.h"
+
+namespace evkit {
+
+struct DeblurRequest {
+  std::vector<int64_t> times_us;  // inside the exposure
+};
+
+struct DeblurResult {
+  std::vector<Frame> frames;  // one per requested time (exposure_start_us = exposure_end_us = time)
+  std::optional<std::vector<StampedPose>> trajectory;
+  std::map<std::string, double> timings_s;    // named phases, plus "total"
+  std::map<std::string, double> parameters;   // what the method chose or used (e.g. "contrast")
+  std::vector<std::pair<int, double>> curve;  // training curve (iteration, loss), when there is one
+};
+
+// Key/value settings of a method, from the command line ("contrast=0.2"); each method documents
+// its keys and rejects unknown ones.
+using MethodSettings = std::map<std::string, std::string>;
+
+class Deblurrer {
+ public:
+  virtual ~Deblurrer() = default;
+  virtual std::string name() const = 0;
+  virtual DeblurResult run(const Observation& obs, const DeblurRequest& request) = 0;
+};
+
+std::vector<std::string> deblurrerNames();
+// Throws evkit::Error for an unknown name or setting.
+std::unique_ptr<Deblurrer> makeDeblurrer(const std::string& name, const MethodSettings& settings = {});
+
+// Default request: n evenly spaced times over the exposure (start and end included) plus the middle.
+DeblurRequest defaultRequest(const Observation& obs, int n = 5);
+
+}  // namespace evkit

@@ -1,0 +1,20 @@
+// Image quality: PSNR and SSIM against a reference (OpenCV's quality module), and the
+// no-reference BRISQUE score (lower is better) with the LIVE model that Debian's opencv-data ships.
+#pragma once
+
+#include <string>
+
+#include <opencv2/core.hpp>
+
+namespace evkit {
+
+// Images float32 in [0,1] (any channel count; SSIM is averaged over channels). PSNR with peak 1.
+double psnr(const cv::Mat& image, const cv::Mat& reference);
+double ssim(const cv::Mat& image, const cv::Mat& reference);
+// Throws evkit::Error when the model files are missing (see brisqueModelDir).
+double brisque(const cv::Mat& image);
+// Folder of brisque_model_live.yml / brisque_range_live.yml: $EVKIT_BRISQUE_DIR, else
+// /usr/share/opencv4/quality.
+std::string brisqueModelDir();
+
+}  // namespace evkit

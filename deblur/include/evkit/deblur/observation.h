@@ -1,0 +1,38 @@
+// The input of every deblurring method: one blurry frame, its exposure, the events, the camera
+// (the observation folder of DESIGN.md §6), and the ground truth when there is some.
+#pragma once
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "evkit/events/calibration.h"
+#include "evkit/events/event_store.h"
+#include "evkit/events/frame.h"
+#include "evkit/spline/fit.h"
+
+namespace evkit {
+
+struct Observation {
+  Frame blurry;  // image + exposure_start_us / exposure_end_us + bit depth
+  EventStore events;
+  Calibration camera;
+  std::optional<std::pair<double, double>> contrast;  // C_on, C_off when known
+  // Ground truth (synthetic data): sharp frames (their exposure_start_us is their time) and poses.
+  std::vector<Frame> gt_frames;
+  std::vector<StampedPose> gt_poses;
+  std::string source;  // where it came from, for reports
+};
+
+// Reads an observation folder: blurry.png, exposure.txt, events.{h5,txt,aedat4,...}, calib.txt,
+// optional contrast.txt and gt/. Throws evkit::Error naming the missing or bad file.
+Observation loadObservation(const std::string& dir);
+
+// Writes one (for `evkit deblur --recording ... --extract DIR`), atomically.
+void saveObservation(const Observation& obs, const std::string& dir);
+
+// Frame `index` of a recording with frames, with the events of its exposure widened by margin_us
+// on both sides. Camera: the recording's calibration, else fx = fy = 0.9 width at the centre.
+Observation observationFromRecording(const std::string& path, size_t index, int64_t margin_us = 0);
+
+}  // namespace evkit
