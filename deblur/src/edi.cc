@@ -68,6 +68,7 @@ EdiModel::EdiModel(const EventSpan& all, int width, int height, int64_t t_begin_
       (ev_p_[e] > 0 ? on : off) += 1;
     }
     if (t_end_ > prev) segments_.push_back({on, off, static_cast<double>(t_end_ - prev)});
+    max_events_per_pixel_ = std::max(max_events_per_pixel_, static_cast<int>(ev_first_[p + 1] - ev_first_[p]));
   }
   seg_first_[pixels] = static_cast<uint32_t>(segments_.size());
 }
@@ -78,6 +79,14 @@ cv::Mat EdiModel::latent(const cv::Mat& blurry, int64_t t_us, double c_on, doubl
   const int channels = blurry.channels();
   cv::Mat out(blurry.size(), blurry.type());
   const double T = static_cast<double>(t_end_ - t_begin_);
+  // Levels are integers: exp(c_on (on - on_f)) and exp(-c_off (off - off_f)) come from two tables
+  // indexed by the count difference, instead of one exp() per segment.
+  const int K = max_events_per_pixel_;
+  std::vector<double> up(static_cast<size_t>(2 * K + 1)), down(static_cast<size_t>(2 * K + 1));
+  for (int k = -K; k <= K; ++k) {
+    up[static_cast<size_t>(k + K)] = std::exp(std::clamp(c_on * k, -kMaxExponent, kMaxExponent));
+    down[static_cast<size_t>(k + K)] = std::exp(std::clamp(-c_off * k, -kMaxExponent, kMaxExponent));
+  }
 #pragma omp parallel for schedule(static)
   for (int y = 0; y < height_; ++y) {
     const float* b = blurry.ptr<float>(y);
@@ -92,11 +101,10 @@ cv::Mat EdiModel::latent(const cv::Mat& blurry, int64_t t_us, double c_on, doubl
         // Level at t: the events of this pixel up to t.
         int32_t on_f = 0, off_f = 0;
         for (uint32_t e = ev_first_[p]; e < ev_first_[p + 1] && ev_t_[e] <= t_us; ++e) (ev_p_[e] > 0 ? on_f : off_f) += 1;
-        const double level_f = c_on * on_f - c_off * off_f;
         double integral = 0.0;  // (1/T) integral exp(c E(t) - c E(f)) dt
         for (uint32_t s = seg_first_[p]; s < seg_first_[p + 1]; ++s) {
           const Segment& seg = segments_[s];
-          integral += seg.duration * std::exp(std::clamp(c_on * seg.on - c_off * seg.off - level_f, -kMaxExponent, kMaxExponent));
+          integral += seg.duration * up[static_cast<size_t>(seg.on - on_f + K)] * down[static_cast<size_t>(seg.off - off_f + K)];
         }
         integral /= T;
         if (integral > 0 && std::isfinite(integral)) gain = 1.0 / integral;

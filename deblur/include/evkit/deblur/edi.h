@@ -56,6 +56,7 @@ class EdiModel {
   std::vector<uint32_t> ev_first_;  // pixel p: ev_t_/ev_p_[ev_first_[p] .. ev_first_[p+1]), sorted
   std::vector<int64_t> ev_t_;
   std::vector<int8_t> ev_p_;
+  int max_events_per_pixel_ = 0;
 };
 
 class EdiDeblurrer final : public Deblurrer {
