@@ -5,8 +5,8 @@ function(evkit_target_defaults target)
   target_compile_options(${target} PRIVATE -Wall -Wextra -Wpedantic)
   if(CMAKE_CXX_COMPILER_ID STREQUAL "GNU")
     # GCC 12 reports its own AVX-512 intrinsics (inlined from Eigen under -march=native) as
-    # maybe-uninitialized: a known false positive that would break -Werror builds.
-    target_compile_options(${target} PRIVATE -Wno-maybe-uninitialized)
+    # (maybe-)uninitialized: a known false positive that would break -Werror builds.
+    target_compile_options(${target} PRIVATE -Wno-maybe-uninitialized -Wno-uninitialized)
   endif()
   if(EVKIT_WERROR)
     target_compile_options(${target} PRIVATE -Werror)

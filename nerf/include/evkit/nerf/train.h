@@ -1,0 +1,55 @@
+// Fitting a radiance field to posed sharp images: the training building block that BeNeRF uses,
+// tested on its own. Each step renders a random batch of rays (stratified samples in NDC t, jittered),
+// takes the mean squared error against the pixels, back-propagates through the volume renderer and
+// the field, and takes an Adam step. Deterministic for a seed with one thread.
+#pragma once
+
+#include <utility>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "evkit/nerf/adam.h"
+#include "evkit/nerf/camera.h"
+#include "evkit/nerf/field.h"
+#include "evkit/nerf/volume_render.h"
+
+namespace evkit::nerf {
+
+struct TrainingView {
+  cv::Mat image;  // float32 linear, 1 or 3 channels, camera size
+  SE3 pose;       // T_world_cam (world = the NDC reference frame)
+};
+
+struct FitOptions {
+  int steps = 500;
+  int rays_per_step = 1024;
+  int samples_per_ray = 64;
+  double near = 1.0;  // NDC near plane (scene units)
+  AdamOptions adam;
+  RenderSettings render;
+  uint64_t seed = 1;
+};
+
+struct FitReport {
+  std::vector<std::pair<int, double>> loss;  // (step, batch MSE)
+  double seconds = 0;
+};
+
+// The samples of one ray: NDC positions (3 x samples), t, and interval lengths.
+struct RaySamples {
+  Eigen::Matrix<float, 3, Eigen::Dynamic> positions;
+  std::vector<float> t, delta;
+};
+// Stratified samples in t in [0, 1); jitter u in [0, 1) per sample (0.5: the centres).
+RaySamples sampleRay(const NdcRay& ray, int samples, const std::vector<float>& jitter);
+
+template <typename T>
+FitReport fitField(RadianceField<T>& field, const PinholeCamera& camera, const std::vector<TrainingView>& views, const FitOptions& options);
+
+// Renders a whole image (sample centres, no jitter), in batches of rows.
+template <typename T>
+cv::Mat renderImage(RadianceField<T>& field, const PinholeCamera& camera, const SE3& pose, int samples, double near,
+                    const RenderSettings& settings = {});
+
+}  // namespace evkit::nerf

@@ -1,0 +1,75 @@
+#include "evkit/nerf/camera.h"
+
+#include <cassert>
+
+namespace evkit::nerf {
+
+namespace {
+// Distorts normalised coordinates (x, y) with k1 k2 p1 p2 k3.
+Eigen::Vector2d distort(const std::vector<double>& k, double x, double y) {
+  const double k1 = k.size() > 0 ? k[0] : 0, k2 = k.size() > 1 ? k[1] : 0, p1 = k.size() > 2 ? k[2] : 0, p2 = k.size() > 3 ? k[3] : 0,
+               k3 = k.size() > 4 ? k[4] : 0;
+  const double r2 = x * x + y * y;
+  const double radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3));
+  return {x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x), y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y};
+}
+}  // namespace
+
+Vector3 PinholeCamera::direction(double u, double v) const {
+  const double xd = (u - cx) / fx, yd = (v - cy) / fy;
+  if (distortion.empty()) return Vector3(xd, yd, 1.0);
+  // Fixed point: x = xd - (distort(x) - x).
+  double x = xd, y = yd;
+  for (int it = 0; it < 20; ++it) {
+    const Eigen::Vector2d d = distort(distortion, x, y);
+    x = xd - (d.x() - x);
+    y = yd - (d.y() - y);
+  }
+  return Vector3(x, y, 1.0);
+}
+
+Eigen::Vector2d PinholeCamera::project(const Vector3& p) const {
+  const Eigen::Vector2d n = distortion.empty() ? Eigen::Vector2d(p.x() / p.z(), p.y() / p.z()) : distort(distortion, p.x() / p.z(), p.y() / p.z());
+  return {fx * n.x() + cx, fy * n.y() + cy};
+}
+
+Ray worldRay(const PinholeCamera& camera, const SE3& T, double u, double v) {
+  return Ray{T.translation(), T.rotation() * camera.direction(u, v)};
+}
+
+NdcRay toNdc(const Ray& ray, const PinholeCamera& camera, double near) {
+  const Vector3& o = ray.origin;
+  const Vector3& d = ray.direction;
+  assert(d.z() > 0);
+  const double ax = 2 * camera.fx / camera.width, ay = 2 * camera.fy / camera.height;
+  const Vector3 on = o + ((near - o.z()) / d.z()) * d;  // onto z = near
+  NdcRay r;
+  r.origin = Vector3(ax * on.x() / near, ay * on.y() / near, -1.0);
+  r.direction = Vector3(ax * (d.x() / d.z() - on.x() / near), ay * (d.y() / d.z() - on.y() / near), 2.0);
+  return r;
+}
+
+Eigen::Matrix<double, 3, 6> ndcPointPoseJacobian(const PinholeCamera& camera, const SE3& T, double u, double v, double t, double n) {
+  const Vector3 d_cam = camera.direction(u, v);
+  const Matrix3 R = T.rotationMatrix();
+  const Vector3 o = T.translation(), d = R * d_cam;
+  const double ax = 2 * camera.fx / camera.width, ay = 2 * camera.fy / camera.height;
+  const double rx = d.x() / d.z(), ry = d.y() / d.z();
+  Eigen::Matrix<double, 3, 3> dp_do = Eigen::Matrix3d::Zero(), dp_dd = Eigen::Matrix3d::Zero();
+  const double s = (1 - t) / n;
+  dp_do(0, 0) = ax * s;
+  dp_do(0, 2) = -ax * s * rx;
+  dp_do(1, 1) = ay * s;
+  dp_do(1, 2) = -ay * s * ry;
+  const double gx = ax * ((1 - t) * (n - o.z()) / n + t), gy = ay * ((1 - t) * (n - o.z()) / n + t);  // dp/dr
+  dp_dd(0, 0) = gx / d.z();
+  dp_dd(0, 2) = -gx * d.x() / (d.z() * d.z());
+  dp_dd(1, 1) = gy / d.z();
+  dp_dd(1, 2) = -gy * d.y() / (d.z() * d.z());
+  Eigen::Matrix<double, 3, 6> J;
+  J.leftCols<3>() = dp_do * R;
+  J.rightCols<3>() = -dp_dd * R * hat(d_cam);
+  return J;
+}
+
+}  // namespace evkit::nerf

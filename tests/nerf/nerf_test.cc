@@ -1,0 +1,275 @@
+#include <gtest/gtest.h>
+#include <omp.h>
+
+#include <cmath>
+#include <random>
+
+#include "evkit/nerf/adam.h"
+#include "evkit/nerf/camera.h"
+#include "evkit/nerf/field.h"
+#include "evkit/nerf/train.h"
+#include "evkit/nerf/volume_render.h"
+#include "evkit/synth/generator.h"
+#include "jacobian_check.h"
+
+namespace evkit::nerf {
+namespace {
+
+using MatrixD = Eigen::MatrixXd;
+constexpr double kEps = 1e-6;
+constexpr double kTol = 1e-6;  // relative, against central differences in double
+
+Eigen::VectorXd flat(const MatrixD& m) { return Eigen::Map<const Eigen::VectorXd>(m.data(), m.size()); }
+
+TEST(VolumeRender, BackwardAgainstCentralDifferences) {
+  std::mt19937_64 rng(1);
+  std::uniform_real_distribution<double> u(0, 1);
+  for (int channels : {1, 3}) {
+    for (double scale : {0.1, 3.0, 40.0}) {
+      const size_t n = 12;
+      Eigen::VectorXd x(static_cast<Eigen::Index>(n * (1 + channels)));  // sigma then colours
+      for (Eigen::Index i = 0; i < x.size(); ++i) x(i) = i < static_cast<Eigen::Index>(n) ? scale * u(rng) : u(rng);
+      std::vector<double> delta(n);
+      for (double& d : delta) d = 0.05 + 0.1 * u(rng);
+      RenderSettings s;
+      s.early_stop = 0;  // every sample contributes, so that every derivative is exercised
+      s.background = 0.3f;
+      const auto f = [&](const Eigen::VectorXd& v) -> Eigen::VectorXd {
+        const RayRender<double> r = renderRay(v.data(), v.data() + n, delta.data(), static_cast<const double*>(nullptr), n, channels, s);
+        return Eigen::Map<const Eigen::VectorXd>(r.colour, channels);
+      };
+      const RayRender<double> fwd = renderRay(x.data(), x.data() + n, delta.data(), static_cast<const double*>(nullptr), n, channels, s);
+      MatrixD J(channels, x.size());
+      for (int c = 0; c < channels; ++c) {
+        double dc[3] = {0, 0, 0};
+        dc[c] = 1;
+        std::vector<double> ds(n), dcol(n * static_cast<size_t>(channels));
+        renderRayBackward(x.data(), x.data() + n, delta.data(), n, channels, s, fwd, dc, ds.data(), dcol.data());
+        for (size_t j = 0; j < n; ++j) J(c, static_cast<Eigen::Index>(j)) = ds[j];
+        for (size_t j = 0; j < n * static_cast<size_t>(channels); ++j) J(c, static_cast<Eigen::Index>(n + j)) = dcol[j];
+      }
+      test::expectJacobianNear("render, scale " + std::to_string(scale), J, f, x, kEps, kTol);
+    }
+  }
+}
+
+TEST(VolumeRender, NoNanWithHugeDensitiesEmptyRaysOrBadInputs) {
+  const double huge[4] = {1e30, 1e300, 0, 5}, colours[4] = {0.5, 0.2, 0.7, 0.1}, delta[4] = {1, 1, 1, 1};
+  RenderSettings s;
+  const RayRender<double> r = renderRay(huge, colours, delta, static_cast<const double*>(nullptr), 4, 1, s);
+  EXPECT_NEAR(r.colour[0], 0.5, 1e-12);  // the first sample is opaque
+  EXPECT_EQ(r.used, 1u);                  // and stops the march
+  double ds[4], dc[4];
+  const double g = 1;
+  renderRayBackward(huge, colours, delta, 4, 1, s, r, &g, ds, dc);
+  for (double v : ds) EXPECT_TRUE(std::isfinite(v));
+  const RayRender<double> empty = renderRay(huge, colours, delta, static_cast<const double*>(nullptr), 0, 1, s);
+  EXPECT_EQ(empty.colour[0], 0.0);
+  const double bad[3] = {NAN, -1, INFINITY}, badc[3] = {NAN, 0.5, 0.5}, d3[3] = {1, 1, 1};
+  const RayRender<double> b = renderRay(bad, badc, d3, static_cast<const double*>(nullptr), 3, 1, s);
+  EXPECT_TRUE(std::isfinite(b.colour[0]));
+  double ds3[3], dc3[3];
+  renderRayBackward(bad, badc, d3, 3, 1, s, b, &g, ds3, dc3);
+  for (double v : ds3) EXPECT_TRUE(std::isfinite(v));
+}
+
+TEST(Mlp, BackwardAgainstCentralDifferencesWithSkip) {
+  Mlp<double> mlp({4, 6, 5, 3}, 1, 7);
+  MatrixD x = MatrixD::Random(4, 5);
+  const MatrixD w = MatrixD::Random(3, 5);  // loss = <w, mlp(x)>
+  Eigen::VectorXd params(static_cast<Eigen::Index>(mlp.parameterCount()));
+  mlp.getParameters(params.data());
+  mlp.zeroGradients();
+  mlp.forward(x);
+  const MatrixD dx = mlp.backward(w);
+  Eigen::VectorXd grad(params.size());
+  mlp.getGradients(grad.data());
+  const auto loss_of_params = [&](const Eigen::VectorXd& p) -> Eigen::VectorXd {
+    Mlp<double> m = mlp;
+    m.setParameters(p.data());
+    return Eigen::VectorXd::Constant(1, (w.array() * m.forward(x).array()).sum());
+  };
+  test::expectJacobianNear("mlp parameters", grad.transpose(), loss_of_params, params, kEps, kTol);
+  const auto loss_of_input = [&](const Eigen::VectorXd& v) -> Eigen::VectorXd {
+    Mlp<double> m = mlp;
+    return Eigen::VectorXd::Constant(1, (w.array() * m.forward(Eigen::Map<const MatrixD>(v.data(), 4, 5)).array()).sum());
+  };
+  test::expectJacobianNear("mlp input", flat(dx).transpose(), loss_of_input, flat(x), kEps, kTol);
+}
+
+TEST(PositionalEncoding, BackwardAgainstCentralDifferences) {
+  const MatrixD p = MatrixD::Random(3, 4);
+  const MatrixD w = MatrixD::Random(3 * (1 + 2 * 6), 4);
+  const MatrixD dp = positionalEncodingBackward(p, 6, w);
+  const auto f = [&](const Eigen::VectorXd& v) -> Eigen::VectorXd {
+    return Eigen::VectorXd::Constant(1, (w.array() * positionalEncoding(MatrixD(Eigen::Map<const MatrixD>(v.data(), 3, 4)), 6).array()).sum());
+  };
+  test::expectJacobianNear("positional encoding", flat(dp).transpose(), f, flat(p), kEps, kTol);
+}
+
+TEST(HashGrid, BackwardToTableAndPositionsAgainstCentralDifferences) {
+  HashGridConfig c;
+  c.levels = 3;
+  c.features = 2;
+  c.log2_table = 6;  // 64 entries: the finest level hashes
+  c.base_resolution = 2;
+  c.per_level_scale = 2.0;
+  HashGrid<double> grid(c, 3);
+  for (double& v : grid.table()) v *= 1e4;  // O(1) features, so that position gradients are not tiny
+  MatrixD x = (MatrixD::Random(3, 6).array() * 0.45 + 0.5).matrix();
+  const MatrixD w = MatrixD::Random(grid.outputSize(), 6);
+  grid.zeroGradients();
+  grid.forward(x);
+  const MatrixD dx = grid.backward(w);
+  const auto of_positions = [&](const Eigen::VectorXd& v) -> Eigen::VectorXd {
+    HashGrid<double> g = grid;
+    return Eigen::VectorXd::Constant(1, (w.array() * g.forward(Eigen::Map<const MatrixD>(v.data(), 3, 6)).array()).sum());
+  };
+  test::expectJacobianNear("hash grid positions", flat(dx).transpose(), of_positions, flat(x), 1e-7, 1e-5);
+  const Eigen::VectorXd table = Eigen::Map<const Eigen::VectorXd>(grid.table().data(), static_cast<Eigen::Index>(grid.table().size()));
+  const auto of_table = [&](const Eigen::VectorXd& v) -> Eigen::VectorXd {
+    HashGrid<double> g = grid;
+    std::copy(v.data(), v.data() + v.size(), g.table().begin());
+    return Eigen::VectorXd::Constant(1, (w.array() * g.forward(x).array()).sum());
+  };
+  const Eigen::VectorXd grad = Eigen::Map<const Eigen::VectorXd>(grid.gradients().data(), static_cast<Eigen::Index>(grid.gradients().size()));
+  test::expectJacobianNear("hash grid table", grad.transpose(), of_table, table, kEps, kTol);
+  // Entries with gradient are exactly the touched ones.
+  for (size_t e = 0; e < grid.touched().size(); ++e) {
+    const bool nonzero = grad(static_cast<Eigen::Index>(2 * e)) != 0 || grad(static_cast<Eigen::Index>(2 * e + 1)) != 0;
+    if (nonzero) {
+      EXPECT_TRUE(grid.touched()[e]) << e;
+    }
+  }
+}
+
+void checkField(RadianceField<double>& field, const std::string& name) {
+  const int n = 4;
+  MatrixD p = MatrixD::Random(3, n) * 0.8;
+  const MatrixD w = MatrixD::Random(1 + field.channels(), n);
+  field.zeroGradients();
+  field.forward(p);
+  const MatrixD dp = field.backward(w);
+  const auto f = [&](const Eigen::VectorXd& v) -> Eigen::VectorXd {
+    return Eigen::VectorXd::Constant(1, (w.array() * field.forward(Eigen::Map<const MatrixD>(v.data(), 3, n)).array()).sum());
+  };
+  test::expectJacobianNear(name + " positions", flat(dp).transpose(), f, flat(p), kEps, 1e-5);
+  // Parameters: a spread of entries of every block.
+  field.zeroGradients();
+  field.forward(p);
+  field.backward(w);
+  for (ParameterBlock<double>& b : field.parameters()) {
+    for (size_t i = 0; i < b.size; i += std::max<size_t>(1, b.size / 7)) {
+      if (b.touched && !b.touched[i / b.row_size]) continue;
+      const double keep = b.values[i];
+      b.values[i] = keep + kEps;
+      const double up = (w.array() * field.forward(p).array()).sum();
+      b.values[i] = keep - kEps;
+      const double down = (w.array() * field.forward(p).array()).sum();
+      b.values[i] = keep;
+      const double numeric = (up - down) / (2 * kEps);
+      EXPECT_NEAR(b.gradients[i], numeric, 1e-5 * std::max(1.0, std::abs(numeric))) << name << " parameter " << i;
+    }
+  }
+}
+
+TEST(Fields, BackwardOfBothFieldsAgainstCentralDifferences) {
+  MlpFieldConfig mc;
+  mc.frequencies = 3;
+  mc.depth = 3;
+  mc.width = 8;
+  mc.skip = 2;
+  mc.colour_width = 6;
+  checkField(*makeMlpField<double>(mc, 3, 1), "mlp field");
+  HashFieldConfig hc;
+  hc.grid.levels = 3;
+  hc.grid.features = 2;
+  hc.grid.log2_table = 8;
+  hc.grid.base_resolution = 4;
+  hc.hidden = 8;
+  auto hash = makeHashField<double>(hc, 1, 2);
+  // O(1) features instead of the 1e-4 initialisation: ReLU kinks stay far from the finite
+  // differences' steps.
+  ParameterBlock<double> table = hash->parameters().front();
+  for (size_t i = 0; i < table.size; ++i) table.values[i] *= 1e4;
+  checkField(*hash, "hash field");
+}
+
+TEST(Camera, NdcPointPoseJacobianAgainstCentralDifferences) {
+  PinholeCamera cam{64, 48, 60.0, 58.0, 31.5, 23.5, {}};
+  const SE3 T(expSO3(Vector3(0.02, -0.03, 0.01)), Vector3(0.05, -0.02, 0.03));
+  for (const std::vector<double>& dist : {std::vector<double>{}, std::vector<double>{-0.2, 0.05, 0.001, -0.002}}) {
+    cam.distortion = dist;
+    for (double t : {0.0, 0.3, 0.9}) {
+      for (const auto& [u, v] : std::vector<std::pair<double, double>>{{3, 4}, {31.5, 23.5}, {60, 40}}) {
+        const auto f = [&](const Eigen::VectorXd& eps) -> Eigen::VectorXd {
+          const NdcRay r = toNdc(worldRay(cam, T * expSE3(Vector6(eps)), u, v), cam, 1.0);
+          return r.origin + t * r.direction;
+        };
+        test::expectJacobianNear("ndc point, t " + std::to_string(t), ndcPointPoseJacobian(cam, T, u, v, t, 1.0), f, Vector6::Zero(), kEps, 1e-6);
+      }
+    }
+    // Distortion round trip: a pixel's direction projects back onto the pixel.
+    const Eigen::Vector2d back = cam.project(cam.direction(10.0, 40.0));
+    EXPECT_NEAR(back.x(), 10.0, 1e-9);
+    EXPECT_NEAR(back.y(), 40.0, 1e-9);
+  }
+}
+
+TEST(Adam, SparseBlocksUpdateOnlyTouchedRowsAndTheRateDecays) {
+  std::vector<double> values = {1, 1, 1, 1}, grads = {0.5, 0.5, 0.5, 0.5};
+  std::vector<uint8_t> touched = {1, 0};
+  AdamOptions o;
+  o.learning_rate = 0.1;
+  o.decay_rate = 0.5;
+  o.decay_steps = 10;
+  Adam<double> adam({ParameterBlock<double>{values.data(), grads.data(), 4, touched.data(), 2}}, o);
+  adam.step();
+  EXPECT_NEAR(values[0], 0.9, 1e-9);  // the first Adam step moves by lr
+  EXPECT_NEAR(values[1], 0.9, 1e-9);
+  EXPECT_EQ(values[2], 1.0);
+  EXPECT_EQ(values[3], 1.0);
+  for (int i = 0; i < 9; ++i) adam.step();
+  EXPECT_NEAR(adam.learningRate(), 0.05, 1e-12);
+}
+
+// A tiny scene (two textured planes) seen from 4 poses: the hash field fits it.
+TEST(Training, HashFieldFitsATinySceneAndIsDeterministicWithOneThread) {
+  const synth::Scene scene = synth::makePreset("text", {});
+  const int w = 40, h = 30;
+  const Calibration k = synth::defaultCamera(w, h);
+  PinholeCamera cam{w, h, k.fx, k.fy, k.cx, k.cy, {}};
+  std::vector<TrainingView> views;
+  for (int i = 0; i < 4; ++i) {
+    const SE3 pose(expSO3(Vector3(0.01 * i, -0.008 * i, 0)), Vector3(0.02 * i, 0.01 * (i % 2), 0));
+    views.push_back({synth::render(scene, k, w, h, pose), pose});
+  }
+  HashFieldConfig hc;
+  hc.grid.levels = 8;
+  hc.grid.log2_table = 14;
+  FitOptions fo;
+  fo.steps = 250;
+  fo.rays_per_step = 256;
+  fo.samples_per_ray = 32;
+  fo.adam.learning_rate = 1e-2;
+  auto field = makeHashField<float>(hc, 1, 5);
+  const FitReport report = fitField(*field, cam, views, fo);
+  EXPECT_LT(report.loss.back().second, report.loss.front().second / 10);
+  const cv::Mat rendered = renderImage(*field, cam, views[1].pose, 32, fo.near);
+  const double mse = cv::norm(rendered - views[1].image, cv::NORM_L2SQR) / (w * h);
+  const double psnr = -10 * std::log10(mse);
+  EXPECT_GT(psnr, 22.0) << "loss " << report.loss.back().second;
+  EXPECT_TRUE(cv::checkRange(rendered));
+  // Deterministic for a seed with one thread.
+  const int threads = omp_get_max_threads();
+  omp_set_num_threads(1);
+  FitOptions shortfit = fo;
+  shortfit.steps = 5;
+  auto a = makeHashField<float>(hc, 1, 5), b = makeHashField<float>(hc, 1, 5);
+  const FitReport ra = fitField(*a, cam, views, shortfit), rb = fitField(*b, cam, views, shortfit);
+  omp_set_num_threads(threads);
+  for (size_t i = 0; i < ra.loss.size(); ++i) EXPECT_EQ(ra.loss[i].second, rb.loss[i].second);
+}
+
+}  // namespace
+}  // namespace evkit::nerf
