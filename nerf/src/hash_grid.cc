@@ -33,30 +33,59 @@ size_t HashGrid<T>::index(int level, int x, int y, int z) const {
   return static_cast<size_t>(level) * entries_ + static_cast<size_t>(i);
 }
 
+// Trilinear weights of the 8 corners (bit a of `corner` = upper vertex along axis a) and their
+// derivatives with respect to the fractional position f.
+template <typename T>
+inline void cornerWeights(const T* f, T* w, T (*dw)[3]) {
+  const T lo[3] = {T(1) - f[0], T(1) - f[1], T(1) - f[2]};
+  for (int corner = 0; corner < 8; ++corner) {
+    const bool bx = corner & 1, by = (corner >> 1) & 1, bz = (corner >> 2) & 1;
+    const T wx = bx ? f[0] : lo[0], wy = by ? f[1] : lo[1], wz = bz ? f[2] : lo[2];
+    w[corner] = wx * wy * wz;
+    if (dw) {
+      dw[corner][0] = (bx ? T(1) : T(-1)) * wy * wz;
+      dw[corner][1] = wx * (by ? T(1) : T(-1)) * wz;
+      dw[corner][2] = wx * wy * (bz ? T(1) : T(-1));
+    }
+  }
+}
+
 template <typename T>
 typename HashGrid<T>::Matrix HashGrid<T>::forward(const Matrix& positions) {
-  positions_ = positions;
   const Eigen::Index n = positions.cols();
   const int F = config_.features;
   Matrix out(outputSize(), n);
+  // Kept for backward: per level and sample, the 8 corner entries and the fractional position.
+  corners_.resize(static_cast<size_t>(config_.levels) * static_cast<size_t>(n) * 8);
+  fractions_.resize(static_cast<size_t>(config_.levels) * static_cast<size_t>(n) * 3);
+  inside_.resize(static_cast<size_t>(n));
+  for (Eigen::Index k = 0; k < n; ++k) {
+    uint8_t mask = 0;
+    for (int a = 0; a < 3; ++a) mask |= (positions(a, k) > T(0) && positions(a, k) < T(1)) ? uint8_t(1 << a) : uint8_t(0);
+    inside_[static_cast<size_t>(k)] = mask;  // the clamp has zero gradient outside
+  }
 #pragma omp parallel for schedule(static)
   for (int l = 0; l < config_.levels; ++l) {
     const int res = resolution_[static_cast<size_t>(l)];
+    uint32_t* corners = corners_.data() + static_cast<size_t>(l) * static_cast<size_t>(n) * 8;
+    T* fractions = fractions_.data() + static_cast<size_t>(l) * static_cast<size_t>(n) * 3;
     for (Eigen::Index k = 0; k < n; ++k) {
       int i0[3];
-      T f[3];
+      T* f = fractions + k * 3;
       for (int a = 0; a < 3; ++a) {
         const T p = std::clamp(positions(a, k), T(0), T(1)) * T(res);
         i0[a] = std::min(static_cast<int>(p), res - 1);
         f[a] = p - T(i0[a]);
       }
+      T w[8];
+      cornerWeights<T>(f, w, nullptr);
       T* dst = out.data() + k * outputSize() + l * F;
       std::fill(dst, dst + F, T(0));
       for (int corner = 0; corner < 8; ++corner) {
-        T w = 1;
-        for (int a = 0; a < 3; ++a) w *= (corner >> a) & 1 ? f[a] : T(1) - f[a];
-        const T* feat = table_.data() + index(l, i0[0] + (corner & 1), i0[1] + ((corner >> 1) & 1), i0[2] + ((corner >> 2) & 1)) * F;
-        for (int c = 0; c < F; ++c) dst[c] += w * feat[c];
+        const size_t idx = index(l, i0[0] + (corner & 1), i0[1] + ((corner >> 1) & 1), i0[2] + ((corner >> 2) & 1));
+        corners[k * 8 + corner] = static_cast<uint32_t>(idx);
+        const T* feat = table_.data() + idx * static_cast<size_t>(F);
+        for (int c = 0; c < F; ++c) dst[c] += w[corner] * feat[c];
       }
     }
   }
@@ -65,57 +94,44 @@ typename HashGrid<T>::Matrix HashGrid<T>::forward(const Matrix& positions) {
 
 template <typename T>
 typename HashGrid<T>::Matrix HashGrid<T>::backward(const Matrix& d_features) {
-  const Eigen::Index n = positions_.cols();
+  const Eigen::Index n = d_features.cols();
   const int F = config_.features;
-  std::vector<Matrix> d_pos_level(static_cast<size_t>(config_.levels), Matrix::Zero(3, n));
-#pragma omp parallel for schedule(static)
-  for (int l = 0; l < config_.levels; ++l) {
-    const int res = resolution_[static_cast<size_t>(l)];
-    Matrix& dpos = d_pos_level[static_cast<size_t>(l)];
-    for (Eigen::Index k = 0; k < n; ++k) {
-      int i0[3];
-      T f[3];
-      bool inside[3];
-      for (int a = 0; a < 3; ++a) {
-        const T raw = positions_(a, k);
-        inside[a] = raw > T(0) && raw < T(1);  // the clamp has zero gradient outside
-        const T p = std::clamp(raw, T(0), T(1)) * T(res);
-        i0[a] = std::min(static_cast<int>(p), res - 1);
-        f[a] = p - T(i0[a]);
-      }
-      const T* g = d_features.data() + k * outputSize() + l * F;
-      for (int corner = 0; corner < 8; ++corner) {
-        T w = 1;
-        T dw[3];
-        for (int a = 0; a < 3; ++a) {
-          const bool hi = (corner >> a) & 1;
-          w *= hi ? f[a] : T(1) - f[a];
-        }
-        for (int a = 0; a < 3; ++a) {
-          // d w / d f_a: the product of the other two factors, times +1 (hi) or -1 (lo).
-          T others = 1;
-          for (int b = 0; b < 3; ++b) {
-            if (b != a) others *= (corner >> b) & 1 ? f[b] : T(1) - f[b];
+  Matrix d_positions = Matrix::Zero(3, n);
+#pragma omp parallel
+  {
+    // Each thread owns whole levels (their table slices: no atomics) and its own position sums.
+    Matrix local = Matrix::Zero(3, n);
+#pragma omp for schedule(static)
+    for (int l = 0; l < config_.levels; ++l) {
+      const T res = T(resolution_[static_cast<size_t>(l)]);
+      const uint32_t* corners = corners_.data() + static_cast<size_t>(l) * static_cast<size_t>(n) * 8;
+      const T* fractions = fractions_.data() + static_cast<size_t>(l) * static_cast<size_t>(n) * 3;
+      for (Eigen::Index k = 0; k < n; ++k) {
+        T w[8], dw[8][3];
+        cornerWeights<T>(fractions + k * 3, w, dw);
+        const T* g = d_features.data() + k * outputSize() + l * F;
+        T dp[3] = {0, 0, 0};
+        for (int corner = 0; corner < 8; ++corner) {
+          const size_t idx = corners[k * 8 + corner];
+          const T* feat = table_.data() + idx * static_cast<size_t>(F);
+          T* grad = grad_.data() + idx * static_cast<size_t>(F);
+          T dot = 0;
+          for (int c = 0; c < F; ++c) {
+            grad[c] += w[corner] * g[c];
+            dot += g[c] * feat[c];
           }
-          dw[a] = ((corner >> a) & 1 ? T(1) : T(-1)) * others;
+          touched_[idx] = 1;
+          for (int a = 0; a < 3; ++a) dp[a] += dot * dw[corner][a];
         }
-        const size_t idx = index(l, i0[0] + (corner & 1), i0[1] + ((corner >> 1) & 1), i0[2] + ((corner >> 2) & 1));
-        const T* feat = table_.data() + idx * F;
-        T* grad = grad_.data() + idx * F;
-        T dot = 0;
-        for (int c = 0; c < F; ++c) {
-          grad[c] += w * g[c];
-          dot += g[c] * feat[c];
-        }
-        touched_[idx] = 1;
+        const uint8_t inside = inside_[static_cast<size_t>(k)];
         for (int a = 0; a < 3; ++a) {
-          if (inside[a]) dpos(a, k) += dot * dw[a] * T(res);
+          if (inside & (1 << a)) local(a, k) += dp[a] * res;
         }
       }
     }
+#pragma omp critical
+    d_positions += local;
   }
-  Matrix d_positions = Matrix::Zero(3, n);
-  for (const Matrix& d : d_pos_level) d_positions += d;
   return d_positions;
 }
 

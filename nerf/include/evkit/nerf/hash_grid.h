@@ -48,7 +48,10 @@ class HashGrid {
   std::vector<int> resolution_;
   std::vector<T> table_, grad_;
   std::vector<uint8_t> touched_;
-  Matrix positions_;
+  // Forward's record for backward: corner entries, fractional positions, in-range axes.
+  std::vector<uint32_t> corners_;
+  std::vector<T> fractions_;
+  std::vector<uint8_t> inside_;
 };
 
 }  // namespace evkit::nerf

@@ -1,0 +1,75 @@
+// Radiance-field cost on this CPU: forward + backward per sample for the NeRF MLP (8 x 256, the
+// reference) and for hash-grid fields of several sizes (the choice of the fast field), and a full
+// training step (rays/s) for each.
+//
+//   ./build/benchmarks/evkit_nerf_bench
+
+#include <benchmark/benchmark.h>
+
+#include "evkit/nerf/field.h"
+#include "evkit/nerf/train.h"
+
+namespace evkit::nerf {
+namespace {
+
+using MatrixF = Eigen::MatrixXf;
+
+void fieldStep(benchmark::State& state, RadianceField<float>& field, int batch) {
+  const MatrixF p = MatrixF::Random(3, batch) * 0.9f;
+  const MatrixF d = MatrixF::Random(1 + field.channels(), batch);
+  for (auto _ : state) {
+    field.zeroGradients();
+    benchmark::DoNotOptimize(field.forward(p));
+    benchmark::DoNotOptimize(field.backward(d));
+  }
+  state.SetItemsProcessed(state.iterations() * batch);  // samples
+}
+
+void BM_MlpField(benchmark::State& state) {
+  auto field = makeMlpField<float>(MlpFieldConfig{}, 3, 1);
+  fieldStep(state, *field, 4096);
+}
+
+// Args: levels, features, log2 table.
+void BM_HashField(benchmark::State& state) {
+  HashFieldConfig c;
+  c.grid.levels = static_cast<int>(state.range(0));
+  c.grid.features = static_cast<int>(state.range(1));
+  c.grid.log2_table = static_cast<int>(state.range(2));
+  c.grid.per_level_scale = c.grid.levels >= 16 ? 1.38 : 1.5;
+  auto field = makeHashField<float>(c, 3, 1);
+  fieldStep(state, *field, 65536);
+  state.SetLabel(std::to_string(c.grid.levels) + "x" + std::to_string(c.grid.features) + ", 2^" + std::to_string(c.grid.log2_table) +
+                 " entries, " + std::to_string(c.grid.levels * (size_t{1} << c.grid.log2_table) * c.grid.features * 4 / 1000000) + " MB");
+}
+
+void trainingSteps(benchmark::State& state, RadianceField<float>& field, int rays) {
+  PinholeCamera cam{64, 48, 58.0, 58.0, 31.5, 23.5, {}};
+  std::vector<TrainingView> views = {{cv::Mat(48, 64, CV_32FC3, cv::Scalar(0.3, 0.5, 0.7)), SE3()}};
+  FitOptions o;
+  o.steps = 1;
+  o.rays_per_step = rays;
+  o.samples_per_ray = 64;
+  for (auto _ : state) benchmark::DoNotOptimize(fitField(field, cam, views, o));
+  state.SetItemsProcessed(state.iterations() * rays);  // rays
+}
+
+void BM_TrainStepHash(benchmark::State& state) {
+  auto field = makeHashField<float>(HashFieldConfig{}, 3, 1);
+  trainingSteps(state, *field, 1024);
+}
+
+void BM_TrainStepMlp(benchmark::State& state) {
+  auto field = makeMlpField<float>(MlpFieldConfig{}, 3, 1);
+  trainingSteps(state, *field, 64);
+}
+
+BENCHMARK(BM_MlpField)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_HashField)->Args({16, 2, 19})->Args({8, 4, 16})->Args({8, 2, 16})->Args({12, 2, 16})->Args({8, 4, 14})->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_TrainStepHash)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_TrainStepMlp)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+}  // namespace
+}  // namespace evkit::nerf
+
+BENCHMARK_MAIN();
