@@ -216,6 +216,35 @@ TEST(Camera, NdcPointPoseJacobianAgainstCentralDifferences) {
   }
 }
 
+TEST(Sampling, ImportanceSamplesFollowTheWeights) {
+  std::vector<float> t, w;
+  for (int j = 0; j < 16; ++j) {
+    t.push_back(j / 16.0f);
+    w.push_back(j == 9 ? 1.0f : 0.0f);  // all the mass in [9/16, 10/16)
+  }
+  std::vector<float> u;
+  for (int k = 0; k < 64; ++k) u.push_back((k + 0.5f) / 64);
+  const std::vector<float> s = importanceSamples(t, w, u);
+  ASSERT_EQ(s.size(), 64u);
+  EXPECT_TRUE(std::is_sorted(s.begin(), s.end()));
+  const long inside = std::count_if(s.begin(), s.end(), [](float v) { return v >= 9 / 16.0f && v < 10 / 16.0f; });
+  EXPECT_GE(inside, 60);  // the floor leaves a few elsewhere
+  // Uniform weights give evenly spread samples; NaN weights count as zero.
+  std::vector<float> uniform(16, 1.0f);
+  uniform[3] = NAN;
+  const std::vector<float> e = importanceSamples(t, uniform, u);
+  for (float v : e) EXPECT_TRUE(v >= 0 && v < 1);
+  EXPECT_NEAR(e[32], 0.5f, 0.07f);
+}
+
+TEST(Grey, WeightsAndBackward) {
+  const double bgr[3] = {0.2, 0.4, 0.6};
+  EXPECT_NEAR(greyOf(bgr, 3), 0.114 * 0.2 + 0.587 * 0.4 + 0.299 * 0.6, 1e-15);
+  double d[3];
+  greyBackward(2.0, 3, d);
+  EXPECT_DOUBLE_EQ(d[2], 0.598);
+}
+
 TEST(Adam, SparseBlocksUpdateOnlyTouchedRowsAndTheRateDecays) {
   std::vector<double> values = {1, 1, 1, 1}, grads = {0.5, 0.5, 0.5, 0.5};
   std::vector<uint8_t> touched = {1, 0};
@@ -260,6 +289,17 @@ TEST(Training, HashFieldFitsATinySceneAndIsDeterministicWithOneThread) {
   const double psnr = -10 * std::log10(mse);
   EXPECT_GT(psnr, 22.0) << "loss " << report.loss.back().second;
   EXPECT_TRUE(cv::checkRange(rendered));
+  // With importance samples on top of the coarse ones the fitted scene still renders well.
+  const cv::Mat refined = renderImage(*field, cam, views[1].pose, 32, fo.near, {}, 32);
+  const double psnr_refined = -10 * std::log10(cv::norm(refined - views[1].image, cv::NORM_L2SQR) / (w * h));
+  EXPECT_GT(psnr_refined, 22.0);
+  FitOptions hierarchical = fo;
+  hierarchical.steps = 60;
+  hierarchical.samples_per_ray = 16;
+  hierarchical.importance_samples = 16;
+  auto h_field = makeHashField<float>(hc, 1, 6);
+  const FitReport hr = fitField(*h_field, cam, views, hierarchical);
+  EXPECT_LT(hr.loss.back().second, hr.loss.front().second / 3);
   // Deterministic for a seed with one thread.
   const int threads = omp_get_max_threads();
   omp_set_num_threads(1);

@@ -25,6 +25,9 @@ struct FitOptions {
   int steps = 500;
   int rays_per_step = 1024;
   int samples_per_ray = 64;
+  // Hierarchical sampling: a first pass with samples_per_ray stratified samples (no gradient), then
+  // importance_samples more drawn from its weights; the loss uses the union. 0: off.
+  int importance_samples = 0;
   double near = 1.0;  // NDC near plane (scene units)
   AdamOptions adam;
   RenderSettings render;
@@ -43,13 +46,22 @@ struct RaySamples {
 };
 // Stratified samples in t in [0, 1); jitter u in [0, 1) per sample (0.5: the centres).
 RaySamples sampleRay(const NdcRay& ray, int samples, const std::vector<float>& jitter);
+// Samples at given sorted t in [0, 1).
+RaySamples samplesAt(const NdcRay& ray, std::vector<float> t);
+
+// Importance sampling (NeRF's hierarchical sampling, Mildenhall et al. 2020 §5.2): `count` new
+// sample positions in [0, 1) drawn by inverting the piecewise-constant density of `weights` over
+// the intervals [t_j, t_{j+1}) (t_n = 1), at the quantiles u (sorted, in [0, 1)); a small floor on
+// the weights keeps every interval reachable. Returned sorted.
+std::vector<float> importanceSamples(const std::vector<float>& t, const std::vector<float>& weights, const std::vector<float>& u);
 
 template <typename T>
 FitReport fitField(RadianceField<T>& field, const PinholeCamera& camera, const std::vector<TrainingView>& views, const FitOptions& options);
 
-// Renders a whole image (sample centres, no jitter), in batches of rows.
+// Renders a whole image (sample centres, no jitter; plus importance samples when asked), in batches
+// of rows.
 template <typename T>
 cv::Mat renderImage(RadianceField<T>& field, const PinholeCamera& camera, const SE3& pose, int samples, double near,
-                    const RenderSettings& settings = {});
+                    const RenderSettings& settings = {}, int importance_samples = 0);
 
 }  // namespace evkit::nerf

@@ -40,4 +40,21 @@ template <typename T>
 void renderRayBackward(const T* sigma, const T* colours, const T* delta, size_t n, int channels, const RenderSettings& settings,
                        const RayRender<T>& forward, const T* d_colour, T* d_sigma, T* d_colours);
 
+// The grey value of a colour (BGR) as the simulator and BeNeRF's code take it: 0.299 R + 0.587 G +
+// 0.114 B, and the shared log mapping log(grey + eps) with its derivative 1 / (grey + eps).
+template <typename T>
+T greyOf(const T* colour, int channels) {
+  return channels == 1 ? colour[0] : T(0.114) * colour[0] + T(0.587) * colour[1] + T(0.299) * colour[2];
+}
+template <typename T>
+void greyBackward(T d_grey, int channels, T* d_colour) {
+  if (channels == 1) {
+    d_colour[0] = d_grey;
+    return;
+  }
+  d_colour[0] = T(0.114) * d_grey;
+  d_colour[1] = T(0.587) * d_grey;
+  d_colour[2] = T(0.299) * d_grey;
+}
+
 }  // namespace evkit::nerf
