@@ -19,6 +19,18 @@ void growTo(std::vector<uint8_t>& out, size_t n) {
   if (out.size() < n) out.resize(n);
 }
 
+// Doubles the output limit (up to max_output) when `produced` has reached it; false when it cannot.
+bool makeRoom(std::vector<uint8_t>& out, size_t produced, size_t& limit, size_t max_output, std::string& error) {
+  if (produced < limit) return true;
+  if (limit >= max_output) {
+    error = "decompressed packet larger than " + std::to_string(max_output) + " bytes";
+    return false;
+  }
+  limit = std::min(max_output, limit * 2);
+  growTo(out, limit);
+  return true;
+}
+
 bool decompressLz4(const uint8_t* in, size_t in_size, std::vector<uint8_t>& out, size_t& out_size, size_t max_output,
                    std::string& error) {
   LZ4F_dctx* raw = nullptr;
@@ -40,14 +52,7 @@ bool decompressLz4(const uint8_t* in, size_t in_size, std::vector<uint8_t>& out,
   growTo(out, std::max<size_t>(limit, 1));
   size_t produced = 0;
   while (true) {
-    if (produced == limit) {
-      if (limit >= max_output) {
-        error = "decompressed packet larger than " + std::to_string(max_output) + " bytes";
-        return false;
-      }
-      limit = std::min(max_output, limit * 2);
-      growTo(out, limit);
-    }
+    if (!makeRoom(out, produced, limit, max_output, error)) return false;
     size_t dst = limit - produced, src = in_size - consumed;
     const size_t hint = LZ4F_decompress(ctx.get(), out.data() + produced, &dst, in + consumed, &src, nullptr);
     if (LZ4F_isError(hint)) {
@@ -75,14 +80,7 @@ bool decompressZstd(const uint8_t* in, size_t in_size, std::vector<uint8_t>& out
   ZSTD_inBuffer input{in, in_size, 0};
   size_t produced = 0;
   while (true) {
-    if (produced == limit) {
-      if (limit >= max_output) {
-        error = "decompressed packet larger than " + std::to_string(max_output) + " bytes";
-        return false;
-      }
-      limit = std::min(max_output, limit * 2);
-      growTo(out, limit);
-    }
+    if (!makeRoom(out, produced, limit, max_output, error)) return false;
     ZSTD_outBuffer output{out.data() + produced, limit - produced, 0};
     const size_t ret = ZSTD_decompressStream(ds.get(), &output, &input);
     if (ZSTD_isError(ret)) {

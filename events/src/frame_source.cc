@@ -3,14 +3,13 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
 
-#include "evkit/events/decimal.h"
 #include "evkit/events/error.h"
 #include "evkit/events/image_io.h"
+#include "timed_list.h"
 
 namespace evkit {
 namespace fs = std::filesystem;
@@ -29,28 +28,9 @@ bool isVideo(const std::string& path) {
 class ImageSequence final : public FrameSequence {
  public:
   ImageSequence(const std::string& list, bool seconds, bool srgb) : srgb_(srgb) {
-    std::ifstream in(list);
-    if (!in) throwInFile(list, "cannot open the timestamps file");
-    const fs::path base = fs::path(list).parent_path();
-    std::string line;
-    int64_t line_no = 0;
-    while (std::getline(in, line)) {
-      ++line_no;
-      if (!line.empty() && line.back() == '\r') line.pop_back();
-      const size_t first = line.find_first_not_of(" \t");
-      if (first == std::string::npos || line[first] == '#') continue;
-      const char* p = line.data() + first;
-      const char* end = line.data() + line.size();
-      int64_t t = 0;
-      const bool ok = seconds ? parseSecondsAsMicros(p, end, t) : parseInt(p, end, INT64_MIN, INT64_MAX, t);
-      if (!ok || p == end || (*p != ' ' && *p != '\t')) {
-        throwAtLine(list, line_no, seconds ? "expected 't_seconds image_path'" : "expected 't_us image_path' (t an integer in µs)");
-      }
-      while (p < end && (*p == ' ' || *p == '\t')) ++p;
-      if (p == end) throwAtLine(list, line_no, "no image path after the time");
-      if (!times_.empty() && t <= times_.back()) throwAtLine(list, line_no, "frame times must increase");
+    for (auto& [t, path] : detail::readTimedPathList(list, seconds, true)) {
       times_.push_back(t);
-      paths_.push_back((base / std::string(p, end)).string());
+      paths_.push_back(std::move(path));
     }
     if (times_.size() < 2) throwInFile(list, "fewer than two frames: nothing to simulate");
     const Frame first = readImageFile(paths_[0]);

@@ -6,12 +6,11 @@
 // exposure start and end are both that timestamp.
 
 #include <filesystem>
-#include <fstream>
 
 #include "evkit/events/error.h"
 #include "evkit/events/image_io.h"
 #include "formats.h"
-#include "evkit/events/decimal.h"
+#include "timed_list.h"
 
 namespace evkit::detail {
 namespace fs = std::filesystem;
@@ -28,7 +27,7 @@ class RpgFolderReader final : public EventReader {
     const fs::path calib = fs::path(dir) / "calib.txt";
     if (fs::exists(calib)) info_.calibration = readCalibration(calib.string());
     const fs::path images = fs::path(dir) / "images.txt";
-    if (fs::exists(images)) readImageList(images.string());
+    if (fs::exists(images)) images_ = readTimedPathList(images.string(), true, false);
   }
 
  protected:
@@ -56,30 +55,6 @@ class RpgFolderReader final : public EventReader {
   }
 
  private:
-  void readImageList(const std::string& list) {
-    std::ifstream file(list);
-    std::string line;
-    int64_t line_no = 0;
-    while (std::getline(file, line)) {
-      ++line_no;
-      if (!line.empty() && line.back() == '\r') line.pop_back();
-      const size_t first = line.find_first_not_of(" \t");
-      if (first == std::string::npos || line[first] == '#') continue;
-      const char* p = line.data() + first;
-      const char* end = line.data() + line.size();
-      int64_t t;
-      if (!parseSecondsAsMicros(p, end, t) || p == end || (*p != ' ' && *p != '\t')) {
-        throwAtLine(list, line_no, "expected 't image_path' with t in seconds");
-      }
-      while (p < end && (*p == ' ' || *p == '\t')) ++p;
-      if (p == end) throwAtLine(list, line_no, "expected 't image_path' with t in seconds");
-      if (!images_.empty() && t < images_.back().first) {
-        throwAtLine(list, line_no, "image timestamps go back in time");
-      }
-      images_.emplace_back(t, (fs::path(dir_) / std::string(p, end)).string());
-    }
-  }
-
   std::string dir_;
   std::unique_ptr<EventReader> events_;
   Chunk scratch_;
