@@ -17,7 +17,7 @@ readers=("$@")
 [ ${#readers[@]} -gt 0 ] || readers=(text hdf5 aedat2 aedat3 aedat4 evt2 evt3 dat)
 
 CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DEVKIT_FUZZ=ON \
-  -DEVKIT_BUILD_TESTS=OFF -DEVKIT_BUILD_BENCHMARKS=OFF -DEVKIT_NATIVE=OFF >/dev/null
+  -DEVKIT_BUILD_TESTS=OFF -DEVKIT_BUILD_BENCHMARKS=OFF -DEVKIT_NATIVE=OFF -DCMAKE_UNITY_BUILD=ON >/dev/null
 cmake --build build-fuzz -j "$(nproc)" --target evkit_fuzzers evkit >/dev/null
 
 work=build-fuzz/work

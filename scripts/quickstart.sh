@@ -5,6 +5,6 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 bash scripts/install-deps.sh
-cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release -DEVKIT_BUILD_TESTS=OFF -DEVKIT_BUILD_BENCHMARKS=OFF
+cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release -DEVKIT_BUILD_TESTS=OFF -DEVKIT_BUILD_BENCHMARKS=OFF -DCMAKE_UNITY_BUILD=ON
 cmake --build build -j "$(nproc)"
 ./build/cli/evkit demo --out evkit-demo

@@ -11,7 +11,7 @@ bash scripts/install-deps.sh
 
 echo "== Release build and tests"
 cmake -S . -B build-test -G Ninja -DCMAKE_BUILD_TYPE=Release -DEVKIT_BUILD_TESTS=ON \
-  -DEVKIT_BUILD_BENCHMARKS=OFF -DEVKIT_WERROR=ON
+  -DEVKIT_BUILD_BENCHMARKS=OFF -DEVKIT_WERROR=ON -DCMAKE_UNITY_BUILD=ON
 cmake --build build-test -j "$jobs"
 ctest --test-dir build-test --output-on-failure -j "$jobs"
 
@@ -25,7 +25,7 @@ fi
 if [ "${EVKIT_SKIP_SANITIZE:-0}" != "1" ]; then
   echo "== AddressSanitizer + UBSan build and tests"
   cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DEVKIT_BUILD_TESTS=ON \
-    -DEVKIT_BUILD_BENCHMARKS=OFF -DEVKIT_SANITIZE=ON -DEVKIT_WERROR=ON
+    -DEVKIT_BUILD_BENCHMARKS=OFF -DEVKIT_SANITIZE=ON -DEVKIT_WERROR=ON -DCMAKE_UNITY_BUILD=ON
   cmake --build build-asan -j "$jobs"
   ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
     ctest --test-dir build-asan --output-on-failure -j "$jobs"

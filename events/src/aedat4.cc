@@ -39,7 +39,7 @@ namespace {
 constexpr char kMagic[] = "#!AER-DAT4.0\r\n";
 constexpr size_t kMagicBytes = 14;
 constexpr uint32_t kMaxHeaderBytes = 16u << 20;
-constexpr size_t kMaxPacketBytes = size_t{512} << 20;  // decompressed; a 4K BGRA16 frame is 64 MB
+constexpr size_t kMaxDecompressedBytes = size_t{512} << 20;  // decompressed; a 4K BGRA16 frame is 64 MB
 
 Codec codecFor(fb4::CompressionType c) {
   switch (c) {
@@ -146,7 +146,7 @@ class Aedat4Reader final : public EventReader {
       file_.readExact(raw.data(), raw.size(), "file data table");
       std::string error;
       size_t table_size = 0;
-      if (!decompress(codec_, raw.data(), raw.size(), table_buf_, table_size, kMaxPacketBytes, error)) throw Error(error);
+      if (!decompress(codec_, raw.data(), raw.size(), table_buf_, table_size, kMaxDecompressedBytes, error)) throw Error(error);
       const auto* table = verifiedSizePrefixedRoot<fb4::FileDataTable>(table_buf_, table_size, "FTAB");
       if (table == nullptr || table->table() == nullptr) throw Error("invalid file data table");
       // byte_offset is where the packet's data starts, 8 bytes after its header (as DV writes it).
@@ -234,7 +234,7 @@ class Aedat4Reader final : public EventReader {
       if (type != "EVTS" && type != "FRME" && type != "IMUS" && type != "TRIG") continue;
       std::string error;
       size_t size_out = 0;
-      if (!decompress(codec_, raw_.data(), raw_.size(), buf_, size_out, kMaxPacketBytes, error)) file_.failAt(at + 8, error);
+      if (!decompress(codec_, raw_.data(), raw_.size(), buf_, size_out, kMaxDecompressedBytes, error)) file_.failAt(at + 8, error);
       if (type == "EVTS") {
         const auto* packet = verifiedSizePrefixedRoot<fb4::EventPacket>(buf_, size_out, "EVTS");
         if (packet == nullptr) file_.failAt(at + 8, "corrupt EVTS packet (FlatBuffer verification failed)");

@@ -9,8 +9,8 @@
 namespace evkit {
 namespace {
 
-constexpr int64_t kT0 = 1605537493718345;  // absolute Unix µs
-constexpr int64_t kT1 = kT0 + 100000;
+constexpr int64_t kBegin = 1605537493718345;  // absolute Unix µs
+constexpr int64_t kEnd = kBegin + 100000;
 const TrajectoryKind kKinds[] = {TrajectoryKind::kCubicSE3, TrajectoryKind::kCubicSplit, TrajectoryKind::kLinear};
 
 // Knots that step by `step` (rad and scene units) from one to the next, in random directions.
@@ -29,7 +29,7 @@ std::vector<SE3> randomKnots(int n, double step, uint64_t seed) {
 TEST(Trajectory, ConstantKnotsGiveAConstantTrajectoryExactly) {
   const SE3 T(expSO3(Vector3(0.3, -0.2, 1.0)), Vector3(1.5, -2.0, 0.25));
   for (TrajectoryKind kind : kKinds) {
-    const Trajectory traj(kind, kT0, kT1, std::vector<SE3>(6, T));
+    const Trajectory traj(kind, kBegin, kEnd, std::vector<SE3>(6, T));
     for (double s : {0.0, 0.123, 0.5, 0.999, 1.0}) {
       const SE3 P = traj.evaluate(s);
       EXPECT_LT((P.matrix() - T.matrix()).cwiseAbs().maxCoeff(), 1e-15) << trajectoryKindName(kind) << " s " << s;
@@ -42,11 +42,11 @@ TEST(Trajectory, ConstantKnotsGiveAConstantTrajectoryExactly) {
 
 TEST(Trajectory, LinearInterpolatesItsKnotsAndCubicIsContinuousAcrossSegments) {
   const std::vector<SE3> knots = randomKnots(7, 0.3, 1);
-  const Trajectory linear(TrajectoryKind::kLinear, kT0, kT1, knots);
+  const Trajectory linear(TrajectoryKind::kLinear, kBegin, kEnd, knots);
   EXPECT_LT((linear.evaluate(0).matrix() - knots[0].matrix()).cwiseAbs().maxCoeff(), 1e-14);
   EXPECT_LT((linear.evaluate(1).matrix() - knots[6].matrix()).cwiseAbs().maxCoeff(), 1e-13);
   for (TrajectoryKind kind : {TrajectoryKind::kCubicSE3, TrajectoryKind::kCubicSplit}) {
-    const Trajectory traj(kind, kT0, kT1, knots);
+    const Trajectory traj(kind, kBegin, kEnd, knots);
     for (int boundary = 1; boundary < 4; ++boundary) {
       const double s = boundary / 4.0;
       const SE3 left = traj.evaluate(s - 1e-12), right = traj.evaluate(s + 1e-12);
@@ -65,7 +65,7 @@ TEST(Trajectory, KnotJacobiansAgainstCentralDifferences) {
   for (TrajectoryKind kind : kKinds) {
     for (int n : {4, 7}) {
       for (double step : {1e-4, 0.1, 1.0}) {
-        const Trajectory traj(kind, kT0, kT1, randomKnots(n, step, 7 + n));
+        const Trajectory traj(kind, kBegin, kEnd, randomKnots(n, step, 7 + n));
         for (double s : {0.0, 0.05, 0.21, 0.37, 0.5, 0.63, 0.88, 0.9999}) {
           KnotJacobians J;
           const SE3 P = traj.evaluate(s, &J);
@@ -89,7 +89,7 @@ TEST(Trajectory, KnotJacobiansAgainstCentralDifferences) {
 TEST(Trajectory, JacobiansSatisfyTheLeftInvarianceIdentity) {
   // sum_k J_k Ad(T_k^-1) = Ad(T(s)^-1).
   for (TrajectoryKind kind : kKinds) {
-    const Trajectory traj(kind, kT0, kT1, randomKnots(5, 0.8, 3));
+    const Trajectory traj(kind, kBegin, kEnd, randomKnots(5, 0.8, 3));
     for (double s : {0.0, 0.3, 0.71, 1.0}) {
       KnotJacobians J;
       const SE3 P = traj.evaluate(s, &J);
@@ -104,7 +104,7 @@ TEST(Trajectory, JacobiansSatisfyTheLeftInvarianceIdentity) {
 
 TEST(Trajectory, BodyVelocityIsTheDerivativeOfThePose) {
   for (TrajectoryKind kind : kKinds) {
-    const Trajectory traj(kind, kT0, kT1, randomKnots(6, 0.4, 11));
+    const Trajectory traj(kind, kBegin, kEnd, randomKnots(6, 0.4, 11));
     for (double s : {0.1, 0.45, 0.77}) {  // away from knots, where linear velocity jumps
       Vector6 v;
       const SE3 P = traj.evaluate(s, nullptr, &v);
@@ -116,13 +116,13 @@ TEST(Trajectory, BodyVelocityIsTheDerivativeOfThePose) {
 }
 
 TEST(Trajectory, TimesAreExactIntegerMicroseconds) {
-  const Trajectory traj(TrajectoryKind::kCubicSE3, kT0, kT1, randomKnots(4, 0.2, 5));
-  EXPECT_EQ(traj.normalizedTime(kT0), 0.0);
-  EXPECT_EQ(traj.normalizedTime(kT1), 1.0);
-  EXPECT_EQ(traj.normalizedTime(kT0 + 25000), 0.25);
-  EXPECT_LT((traj.poseAt(kT0 + 50000).matrix() - traj.evaluate(0.5).matrix()).cwiseAbs().maxCoeff(), 1e-15);
-  EXPECT_THROW(Trajectory(TrajectoryKind::kCubicSE3, kT0, kT1, randomKnots(3, 0.1, 1)), std::invalid_argument);
-  EXPECT_THROW(Trajectory(TrajectoryKind::kLinear, kT1, kT0, randomKnots(3, 0.1, 1)), std::invalid_argument);
+  const Trajectory traj(TrajectoryKind::kCubicSE3, kBegin, kEnd, randomKnots(4, 0.2, 5));
+  EXPECT_EQ(traj.normalizedTime(kBegin), 0.0);
+  EXPECT_EQ(traj.normalizedTime(kEnd), 1.0);
+  EXPECT_EQ(traj.normalizedTime(kBegin + 25000), 0.25);
+  EXPECT_LT((traj.poseAt(kBegin + 50000).matrix() - traj.evaluate(0.5).matrix()).cwiseAbs().maxCoeff(), 1e-15);
+  EXPECT_THROW(Trajectory(TrajectoryKind::kCubicSE3, kBegin, kEnd, randomKnots(3, 0.1, 1)), std::invalid_argument);
+  EXPECT_THROW(Trajectory(TrajectoryKind::kLinear, kEnd, kBegin, randomKnots(3, 0.1, 1)), std::invalid_argument);
   EXPECT_EQ(parseTrajectoryKind("split"), TrajectoryKind::kCubicSplit);
 }
 
