@@ -64,7 +64,7 @@ typename HashGrid<T>::Matrix HashGrid<T>::forward(const Matrix& positions) {
     for (int a = 0; a < 3; ++a) mask |= (positions(a, k) > T(0) && positions(a, k) < T(1)) ? uint8_t(1 << a) : uint8_t(0);
     inside_[static_cast<size_t>(k)] = mask;  // the clamp has zero gradient outside
   }
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static, 1)  // interleaved: coarse (cheap) and fine levels mix
   for (int l = 0; l < config_.levels; ++l) {
     const int res = resolution_[static_cast<size_t>(l)];
     uint32_t* corners = corners_.data() + static_cast<size_t>(l) * static_cast<size_t>(n) * 8;
@@ -101,7 +101,7 @@ typename HashGrid<T>::Matrix HashGrid<T>::backward(const Matrix& d_features) {
   {
     // Each thread owns whole levels (their table slices: no atomics) and its own position sums.
     Matrix local = Matrix::Zero(3, n);
-#pragma omp for schedule(static)
+#pragma omp for schedule(static, 1)
     for (int l = 0; l < config_.levels; ++l) {
       const T res = T(resolution_[static_cast<size_t>(l)]);
       const uint32_t* corners = corners_.data() + static_cast<size_t>(l) * static_cast<size_t>(n) * 8;
