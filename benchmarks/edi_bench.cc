@@ -10,6 +10,7 @@
 #include <cstdlib>
 #include <filesystem>
 
+#include "bench_dir.h"
 #include "evkit/deblur/edi.h"
 #include "evkit/events/io.h"
 #include "evkit/events/npy.h"
@@ -35,13 +36,10 @@ const Data& data() {
     d.t1 = d.t0 + 100000;
     d.blurry = cv::Mat(260, 346, CV_32F);
     cv::randu(d.blurry, 0.05, 0.95);
-    const char* env = std::getenv("EVKIT_BENCH_DIR");
-    const std::filesystem::path dir = env ? env : std::filesystem::temp_directory_path() / "evkit-bench";
-    std::filesystem::create_directories(dir);
     Recording rec;
     rec.events = d.events;
-    writeRecording((dir / "edi_events.h5").string(), rec);
-    writeNpy((dir / "edi_blurry.npy").string(), d.blurry.ptr<float>(), {260, 346});
+    writeRecording(benchPath("edi_events.h5"), rec);
+    writeNpy(benchPath("edi_blurry.npy"), d.blurry.ptr<float>(), {260, 346});
     return d;
   }();
   return d;

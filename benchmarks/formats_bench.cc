@@ -11,6 +11,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "bench_dir.h"
 #include "evkit/events/io.h"
 #include "evkit/events/random_events.h"
 
@@ -21,12 +22,7 @@ namespace fs = std::filesystem;
 
 constexpr size_t kEvents = 10'000'000;
 
-std::string pathFor(const std::string& name) {
-  const char* env = std::getenv("EVKIT_BENCH_DIR");
-  const fs::path dir = env ? fs::path(env) : fs::temp_directory_path() / "evkit-bench";
-  fs::create_directories(dir);
-  return (dir / name).string();
-}
+std::string pathFor(const std::string& name) { return benchPath(name); }
 
 const EventStore& events() {
   static const EventStore ev = [] {

@@ -11,6 +11,7 @@
 #include <cstdlib>
 #include <filesystem>
 
+#include "bench_dir.h"
 #include "evkit/events/accumulate.h"
 #include "evkit/events/io.h"
 #include "evkit/events/random_events.h"
@@ -21,13 +22,6 @@ namespace {
 namespace fs = std::filesystem;
 
 constexpr size_t kEvents = 10'000'000;
-
-std::string benchDir() {
-  const char* env = std::getenv("EVKIT_BENCH_DIR");
-  const fs::path dir = env ? fs::path(env) : fs::temp_directory_path() / "evkit-bench";
-  fs::create_directories(dir);
-  return dir.string();
-}
 
 const Recording& recording() {
   static const Recording rec = [] {
@@ -42,7 +36,7 @@ const Recording& recording() {
   return rec;
 }
 
-std::string pathFor(const std::string& name) { return benchDir() + "/" + name; }
+std::string pathFor(const std::string& name) { return benchPath(name); }
 
 const Compression kCompressions[] = {Compression::kNone, Compression::kDeflate, Compression::kBloscLz4};
 

@@ -120,14 +120,9 @@ int runAccumulate(const Args& args) {
   s.tau_us = static_cast<double>(parseDuration(vm["tau"].as<std::string>(), "tau"));
   s.npy = !vm["no-npy"].as<bool>();
   if (vm.count("contrast")) {
-    const std::string c = vm["contrast"].as<std::string>();
-    try {
-      size_t used = 0;
-      s.c_on = std::stof(c, &used);
-      s.c_off = c.size() > used && c[used] == ',' ? std::stof(c.substr(used + 1)) : s.c_on;
-    } catch (const std::exception&) {
-      throw UsageError("--contrast: expected C or C_on,C_off, got '" + c + "'");
-    }
+    const auto [on, off] = parseNumberPair(vm["contrast"].as<std::string>(), "contrast");
+    s.c_on = static_cast<float>(on);
+    s.c_off = static_cast<float>(off);
     if (!(s.c_on > 0) || !(s.c_off > 0)) throw UsageError("--contrast: thresholds must be positive");
   }
   if (vm.count("window") && vm.count("count")) throw UsageError("give --window or --count, not both");

@@ -11,20 +11,6 @@
 
 namespace evkit::cli {
 
-namespace {
-
-std::pair<double, double> parsePair(const std::string& text, const std::string& option) {
-  try {
-    size_t used = 0;
-    const double a = std::stod(text, &used);
-    const double b = used < text.size() && text[used] == ',' ? std::stod(text.substr(used + 1)) : a;
-    return {a, b};
-  } catch (const std::exception&) {
-    throw UsageError("--" + option + ": expected a number or two separated by a comma, got '" + text + "'");
-  }
-}
-
-}  // namespace
 
 int runSimulate(const Args& args) {
   po::options_description opts("options");
@@ -57,7 +43,7 @@ int runSimulate(const Args& args) {
   }
   DriverOptions d;
   SimulatorOptions& s = d.simulator;
-  std::tie(s.contrast_pos, s.contrast_neg) = parsePair(vm["contrast"].as<std::string>(), "contrast");
+  std::tie(s.contrast_pos, s.contrast_neg) = parseNumberPair(vm["contrast"].as<std::string>(), "contrast");
   if (!(s.contrast_pos > 0) || !(s.contrast_neg > 0)) throw UsageError("--contrast: thresholds must be positive");
   s.sigma = vm["sigma"].as<double>();
   s.refractory_us = parseTimeValue(vm["refractory"].as<std::string>(), "refractory").us;

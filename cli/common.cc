@@ -77,6 +77,22 @@ TimeValue parseTimeValue(const std::string& text, const std::string& option) {
   return value;
 }
 
+std::pair<double, double> parseNumberPair(const std::string& text, const std::string& option) {
+  try {
+    size_t used = 0;
+    const double a = std::stod(text, &used);
+    if (used == text.size()) return {a, a};
+    if (text[used] != ',') throw std::invalid_argument(text);
+    size_t used_b = 0;
+    const std::string rest = text.substr(used + 1);
+    const double b = std::stod(rest, &used_b);
+    if (used_b != rest.size()) throw std::invalid_argument(text);
+    return {a, b};
+  } catch (const std::exception&) {
+    throw UsageError("--" + option + ": expected a number or two separated by a comma, got '" + text + "'");
+  }
+}
+
 std::optional<Format> optionalFormat(const po::variables_map& vm, const std::string& key) {
   if (!vm.count(key)) return std::nullopt;
   try {

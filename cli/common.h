@@ -44,6 +44,9 @@ struct TimeValue {
 };
 TimeValue parseTimeValue(const std::string& text, const std::string& option);
 
+// "C" or "C_on,C_off" (the second defaults to the first); throws UsageError naming the option.
+std::pair<double, double> parseNumberPair(const std::string& text, const std::string& option);
+
 std::optional<Format> optionalFormat(const po::variables_map& vm, const std::string& key);
 
 // "1605537493.718345 s" and "1,234,567".
