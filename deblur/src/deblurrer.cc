@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 
+#include "evkit/deblur/benerf.h"
 #include "evkit/deblur/edi.h"
 #include "evkit/events/error.h"
 
@@ -64,7 +65,7 @@ std::unique_ptr<Deblurrer> makeEdi(const MethodSettings& settings) {
 
 }  // namespace
 
-std::vector<std::string> deblurrerNames() { return {"blurry", "edi"}; }
+std::vector<std::string> deblurrerNames() { return {"blurry", "edi", "benerf"}; }
 
 std::unique_ptr<Deblurrer> makeDeblurrer(const std::string& name, const MethodSettings& settings) {
   if (name == "blurry") {
@@ -72,6 +73,7 @@ std::unique_ptr<Deblurrer> makeDeblurrer(const std::string& name, const MethodSe
     return std::make_unique<BlurryDeblurrer>();
   }
   if (name == "edi") return makeEdi(settings);
+  if (name == "benerf") return makeBenerf(settings);
   std::string known;
   for (const std::string& n : deblurrerNames()) known += (known.empty() ? "" : ", ") + n;
   throw Error("unknown method '" + name + "' (known: " + known + ")");

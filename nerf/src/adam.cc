@@ -1,6 +1,8 @@
 #include "evkit/nerf/adam.h"
 
 #include <cmath>
+#include <istream>
+#include <ostream>
 
 namespace evkit::nerf {
 
@@ -45,6 +47,24 @@ void Adam<T>::step() {
         for (size_t i = r * b.row_size; i < (r + 1) * b.row_size; ++i) update(i);
       }
     }
+  }
+}
+
+template <typename T>
+void Adam<T>::save(std::ostream& out) const {
+  out.write(reinterpret_cast<const char*>(&t_), sizeof(t_));
+  for (size_t k = 0; k < blocks_.size(); ++k) {
+    out.write(reinterpret_cast<const char*>(m_[k].data()), static_cast<std::streamsize>(m_[k].size() * sizeof(T)));
+    out.write(reinterpret_cast<const char*>(v_[k].data()), static_cast<std::streamsize>(v_[k].size() * sizeof(T)));
+  }
+}
+
+template <typename T>
+void Adam<T>::restore(std::istream& in) {
+  in.read(reinterpret_cast<char*>(&t_), sizeof(t_));
+  for (size_t k = 0; k < blocks_.size(); ++k) {
+    in.read(reinterpret_cast<char*>(m_[k].data()), static_cast<std::streamsize>(m_[k].size() * sizeof(T)));
+    in.read(reinterpret_cast<char*>(v_[k].data()), static_cast<std::streamsize>(v_[k].size() * sizeof(T)));
   }
 }
 

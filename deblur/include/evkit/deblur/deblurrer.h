@@ -3,6 +3,7 @@
 // camera trajectory where the method estimates one, and timings. Methods are made by name.
 #pragma once
 
+#include <functional>
 #include <map>
 #include <memory>
 #include <optional>
@@ -15,6 +16,8 @@ namespace evkit {
 
 struct DeblurRequest {
   std::vector<int64_t> times_us;  // inside the exposure
+  // Called now and then by iterative methods: iteration done, iterations planned, current loss.
+  std::function<void(int, int, double)> progress;
 };
 
 struct DeblurResult {
@@ -23,6 +26,8 @@ struct DeblurResult {
   std::map<std::string, double> timings_s;    // named phases, plus "total"
   std::map<std::string, double> parameters;   // what the method chose or used (e.g. "contrast")
   std::vector<std::pair<int, double>> curve;  // training curve (iteration, loss), when there is one
+  std::vector<std::pair<int, double>> curve_psnr;  // (iteration, PSNR of the mid frame against gt/)
+  cv::Mat disparity;  // float32 at mid-exposure, where the method models depth (1 / depth, arbitrary scale)
 };
 
 // Key/value settings of a method, from the command line ("contrast=0.2"); each method documents

@@ -23,6 +23,19 @@ struct LogMapping {
     if (x >= 20.0f) return std::log(intensity);
     return x * (std::log(20.0f) / 20.0f) - std::log(255.0f);
   }
+  // The same mapping in any precision, with its derivative dL/dI (for models trained through it).
+  template <typename T>
+  T logOf(T intensity) const {
+    if (!lin_log) return std::log(intensity + static_cast<T>(eps));
+    if (T(255) * intensity >= T(20)) return std::log(intensity);
+    return T(255) * intensity * (std::log(T(20)) / T(20)) - std::log(T(255));
+  }
+  template <typename T>
+  T logSlope(T intensity) const {
+    if (!lin_log) return T(1) / (intensity + static_cast<T>(eps));
+    if (T(255) * intensity >= T(20)) return T(1) / intensity;
+    return T(255) * std::log(T(20)) / T(20);
+  }
   float fromLog(float L) const {
     if (!lin_log) return std::exp(L) - static_cast<float>(eps);
     const float x_low = (L + std::log(255.0f)) * 20.0f / std::log(20.0f);

@@ -3,6 +3,7 @@
 // the touched rows only (their moments are left alone otherwise: "lazy" Adam).
 #pragma once
 
+#include <iosfwd>
 #include <vector>
 
 #include "evkit/nerf/field.h"
@@ -23,6 +24,10 @@ class Adam {
   void step();  // applies the blocks' gradients
   double learningRate() const;
   long steps() const { return t_; }
+  AdamOptions& options() { return options_; }  // e.g. to set the decay once the step count is known
+  // The optimiser's state (step count and moments), for checkpoints: restore needs the same blocks.
+  void save(std::ostream& out) const;
+  void restore(std::istream& in);
 
  private:
   std::vector<ParameterBlock<T>> blocks_;

@@ -1,0 +1,146 @@
+// BeNeRF (Li, Wan, Wang et al., "BeNeRF: Neural Radiance Fields from a Single Blurry Image and
+// Event Stream", ECCV 2024): a radiance field and the camera trajectory of one exposure, recovered
+// from the blurry frame and the events of that exposure alone.
+//
+// Model (DESIGN.md §5):
+//  - trajectory: a spline over the exposure (cumulative cubic SE(3), 4 knots, knots initialised
+//    within knot_init of identity; split or linear selectable), poses T_world_cam in double;
+//  - blur term: a blurry pixel is the mean of n virtual sharp renders at poses spread over the
+//    exposure (midpoints s_k = (k + 1/2) / n: the midpoint rule of the exposure integral);
+//    L_p = mean over pixels and channels of (mean_k C_k - B)^2;
+//  - event term: the events of a random window of length alpha T, accumulated per pixel (C_on n_on
+//    - C_off n_off with known thresholds, n_on - n_off otherwise), against the change of the shared
+//    log mapping of the grey renders at the window's ends, log I(t_b) - log I(t_a); both
+//    L2-normalised over the batch (the paper), or compared directly when the thresholds are known
+//    and normalisation is off (the authors' code on synthetic data);
+//    L_e = mean over pixels of the squared difference;
+//  - L = L_p + beta L_e; two Adam optimisers (field; knots as right-perturbation steps) with
+//    exponentially decaying learning rates.
+// Gradients reach the knots through the field's position gradients, the NDC ray's pose Jacobian
+// (affine in the ray parameter, so two Jacobians per ray suffice) and the spline's knot Jacobians.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <random>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+
+#include "evkit/deblur/deblurrer.h"
+#include "evkit/events/log_intensity.h"
+#include "evkit/nerf/camera.h"
+#include "evkit/nerf/field.h"
+#include "evkit/spline/trajectory.h"
+
+namespace evkit {
+
+struct BenerfOptions {
+  // Field: "hash" (the fast field) or "mlp" (the paper's 8 x 256 MLP, the reference).
+  std::string field = "hash";
+  nerf::HashFieldConfig hash;  // levels, features, table; finest resolution adapted to the image when 0
+  int finest_resolution = 0;   // 0: the image's larger side
+  nerf::MlpFieldConfig mlp;
+  TrajectoryKind trajectory = TrajectoryKind::kCubicSE3;
+  int knots = 4;
+  double knot_init = 0.01;  // knots start at exp(u), u uniform in [-knot_init, knot_init]^6
+  int virtual_views = 0;    // n; 0: adapted to the blur length (measured from the events)
+  double alpha = 0.1;       // event window, fraction of the exposure
+  double beta = 0.1;        // weight of the event term
+  bool normalise_events = true;
+  int iterations = 2000;
+  int blur_rays = 1024;   // split over the n views: blur_rays / n pixels per step
+  int event_rays = 1024;  // pixels of the event term per step (2 rays each)
+  int samples = 32;       // stratified samples per ray
+  double near = 1.0;      // NDC near plane
+  double field_lr = 1e-2, knot_lr = 1e-3;
+  double lr_final = 0.1;  // both rates decay exponentially to this fraction at the last iteration
+  double budget_seconds = 0;  // > 0: the iteration count is chosen to fit this wall time
+  uint64_t seed = 1;
+  int threads = 0;  // 0: OpenMP's default
+  LogMapping log;
+  // Checkpoint: written every checkpoint_every iterations and at the end when a path is given;
+  // resume continues from one (the same observation and settings).
+  std::string checkpoint, resume;
+  int checkpoint_every = 500;
+  int curve_every = 25;  // training-curve points
+};
+
+// The budgets: fast, balanced, quality (iterations, rays, samples, field size); throws for others.
+BenerfOptions benerfBudget(const std::string& name);
+
+// The blur length in pixels measured from the events: with a contrast c, the events of a pixel
+// count the total variation of its log intensity over the exposure, which is about the path length
+// times the directional gradient; so length ~ c N_events / ((2/pi) sum |grad log L|), with L a
+// latent frame at mid-exposure from EDI.
+double measureBlurLength(const Observation& obs);
+// n from the blur length: about one view per 2 px of motion, within [5, 19].
+int virtualViewsFor(double blur_px);
+
+// One optimisation problem: the observation's data, the field and the trajectory. Templated on the
+// scalar so that the whole pipeline can be checked against finite differences in double.
+template <typename T>
+class BenerfProblem {
+ public:
+  BenerfProblem(const Observation& obs, const BenerfOptions& options, int virtual_views);
+
+  struct Batch {
+    std::vector<int> blur_pixels;   // pixel indices y * width + x
+    std::vector<int> event_pixels;
+    int64_t window_begin = 0, window_end = 0;
+    std::vector<float> jitter;  // per ray and sample, in [0, 1): blur rays first, then event rays (a, b)
+  };
+  Batch sampleBatch(std::mt19937_64& rng) const;
+
+  struct Loss {
+    double total = 0, blur = 0, event = 0;
+  };
+  // Loss of the batch; zeroes, then fills the field's gradients and knot_gradient (6 per knot:
+  // right-perturbation tangent) when it is not null.
+  Loss evaluate(const Batch& batch, Eigen::VectorXd* knot_gradient);
+
+  // A sharp render at time t (linear, the blurry frame's channels) and, optionally, its disparity
+  // (1 / depth in the units of the NDC frame, background = 0).
+  cv::Mat render(int64_t t_us, cv::Mat* disparity = nullptr);
+
+  nerf::RadianceField<T>& field() { return *field_; }
+  Trajectory& trajectory() { return trajectory_; }
+  const nerf::PinholeCamera& camera() const { return camera_; }
+  int virtualViews() const { return views_; }
+  int64_t eventsInExposure() const { return static_cast<int64_t>(event_t_.size()); }
+
+ private:
+  double accumulatedEvents(int pixel, int64_t t_begin, int64_t t_end) const;
+
+  BenerfOptions options_;
+  nerf::PinholeCamera camera_;
+  int channels_, views_;
+  cv::Mat blurry_;  // float32
+  Trajectory trajectory_;
+  std::unique_ptr<nerf::RadianceField<T>> field_;
+  double c_on_ = 1, c_off_ = 1;
+  bool known_contrast_ = false;
+  // Events of the exposure by pixel: event_first_[p] .. event_first_[p + 1] into event_t_ and
+  // event_level_ (the accumulated polarity after the event).
+  std::vector<uint32_t> event_first_;
+  std::vector<int64_t> event_t_;
+  std::vector<double> event_level_;
+};
+
+class BenerfDeblurrer final : public Deblurrer {
+ public:
+  explicit BenerfDeblurrer(const BenerfOptions& options) : options_(options) {}
+  std::string name() const override { return "benerf"; }
+  DeblurResult run(const Observation& obs, const DeblurRequest& request) override;
+
+ private:
+  BenerfOptions options_;
+};
+
+// Parses `evkit deblur --method benerf --set KEY=VALUE` settings (documented in the README).
+std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings);
+
+}  // namespace evkit

@@ -1,0 +1,762 @@
+#include "evkit/deblur/benerf.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <numbers>
+#include <sstream>
+
+#include <opencv2/imgproc.hpp>
+
+#include "evkit/deblur/edi.h"
+#include "evkit/deblur/metrics.h"
+#include "evkit/events/error.h"
+#include "evkit/nerf/adam.h"
+#include "evkit/nerf/train.h"
+
+namespace evkit {
+
+namespace {
+
+double secondsSince(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+cv::Mat toFloat(const cv::Mat& image) {
+  cv::Mat f;
+  image.convertTo(f, CV_32F);
+  return f;
+}
+
+cv::Mat greyImage(const cv::Mat& image) {
+  if (image.channels() == 1) return toFloat(image);
+  cv::Mat g;
+  cv::cvtColor(toFloat(image), g, cv::COLOR_BGR2GRAY);
+  return g;
+}
+
+nerf::PinholeCamera pinhole(const Calibration& c, int width, int height) {
+  nerf::PinholeCamera camera;
+  camera.width = width;
+  camera.height = height;
+  camera.fx = c.fx;
+  camera.fy = c.fy;
+  camera.cx = c.cx;
+  camera.cy = c.cy;
+  camera.distortion = c.distortion;
+  return camera;
+}
+
+std::vector<SE3> initialKnots(int count, double spread, uint64_t seed) {
+  std::mt19937_64 rng(seed ^ 0x6b6e6f7473ULL);
+  std::uniform_real_distribution<double> u(-spread, spread);
+  std::vector<SE3> knots;
+  for (int k = 0; k < count; ++k) {
+    Vector6 xi;
+    for (int i = 0; i < 6; ++i) xi[i] = u(rng);
+    knots.push_back(expSE3(xi));
+  }
+  return knots;
+}
+
+// The hash grid's level scale so that the finest level has `finest` cells across [0, 1].
+nerf::HashFieldConfig adaptedHash(nerf::HashFieldConfig c, int finest) {
+  if (c.grid.levels > 1 && finest > c.grid.base_resolution) {
+    c.grid.per_level_scale = std::pow(static_cast<double>(finest) / c.grid.base_resolution, 1.0 / (c.grid.levels - 1));
+  }
+  return c;
+}
+
+// The samples of one ray in the field's precision: NDC positions into columns [col, col + S) of
+// `positions`, interval lengths (t_{j+1} - t_j) |d| (t_S = 1), stratified t from the jitter.
+template <typename T>
+void sampleRayInto(const nerf::NdcRay& ray, int S, const float* jitter, Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>& positions,
+                   Eigen::Index col, T* t, T* delta) {
+  const double length = ray.direction.norm();
+  for (int j = 0; j < S; ++j) t[j] = (static_cast<T>(j) + static_cast<T>(jitter[j])) / static_cast<T>(S);
+  for (int j = 0; j < S; ++j) {
+    delta[j] = ((j + 1 < S ? t[j + 1] : T(1)) - t[j]) * static_cast<T>(length);
+    positions.col(col + j) = (ray.origin + static_cast<double>(t[j]) * ray.direction).template cast<T>();
+  }
+}
+
+}  // namespace
+
+BenerfOptions benerfBudget(const std::string& name) {
+  BenerfOptions o;
+  if (name == "fast") {
+    o.iterations = 600;
+    o.blur_rays = 512;
+    o.event_rays = 512;
+    o.samples = 24;
+    o.hash.grid.levels = 8;
+    o.hash.grid.log2_table = 15;
+  } else if (name == "balanced") {
+    o.iterations = 2000;
+    o.blur_rays = 1024;
+    o.event_rays = 1024;
+    o.samples = 32;
+    o.hash.grid.levels = 8;
+    o.hash.grid.log2_table = 16;
+  } else if (name == "quality") {
+    o.iterations = 6000;
+    o.blur_rays = 1024;
+    o.event_rays = 1024;
+    o.samples = 48;
+    o.hash.grid.levels = 12;
+    o.hash.grid.log2_table = 17;
+  } else {
+    throw Error("benerf: unknown budget '" + name + "' (known: fast, balanced, quality, or seconds)");
+  }
+  return o;
+}
+
+double measureBlurLength(const Observation& obs) {
+  EdiDeblurrer edi{EdiOptions{}};
+  DeblurRequest request;
+  request.times_us = {obs.blurry.midExposure()};
+  const DeblurResult r = edi.run(obs, request);
+  const cv::Mat grey = greyImage(r.frames.front().image);
+  const LogMapping log;
+  cv::Mat L(grey.size(), CV_32F);
+  for (int y = 0; y < grey.rows; ++y) {
+    for (int x = 0; x < grey.cols; ++x) L.at<float>(y, x) = log.toLog(std::max(grey.at<float>(y, x), 0.0f));
+  }
+  double gradient = 0;
+  for (int y = 1; y + 1 < L.rows; ++y) {
+    for (int x = 1; x + 1 < L.cols; ++x) {
+      const double gx = 0.5 * (L.at<float>(y, x + 1) - L.at<float>(y, x - 1)), gy = 0.5 * (L.at<float>(y + 1, x) - L.at<float>(y - 1, x));
+      gradient += std::hypot(gx, gy);
+    }
+  }
+  const EventSpan ev = obs.events.sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us + 1);
+  double variation = 0;
+  for (size_t i = 0; i < ev.size(); ++i) variation += ev.p[i] > 0 ? r.parameters.at("contrast_on") : r.parameters.at("contrast_off");
+  if (!(gradient > 0)) return 0;
+  return variation / (2.0 / std::numbers::pi * gradient);
+}
+
+int virtualViewsFor(double blur_px) {
+  if (!std::isfinite(blur_px)) return 19;
+  return std::clamp(static_cast<int>(std::ceil(blur_px / 2.0)) + 1, 5, 19);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The problem
+
+template <typename T>
+BenerfProblem<T>::BenerfProblem(const Observation& obs, const BenerfOptions& options, int virtual_views)
+    : options_(options),
+      camera_(pinhole(obs.camera, obs.blurry.image.cols, obs.blurry.image.rows)),
+      channels_(obs.blurry.image.channels()),
+      views_(virtual_views),
+      blurry_(toFloat(obs.blurry.image)),
+      trajectory_(options.trajectory, obs.blurry.exposure_start_us, obs.blurry.exposure_end_us,
+                  initialKnots(std::max(options.knots, Trajectory::minimumKnots(options.trajectory)), options.knot_init, options.seed)) {
+  if (channels_ != 1 && channels_ != 3) throw Error("benerf: the blurry frame must be grey or colour, not " + std::to_string(channels_) + " channels");
+  if (views_ < 1) throw Error("benerf: need at least one virtual view");
+  if (options.field == "hash") {
+    const int finest = options.finest_resolution > 0 ? options.finest_resolution : std::max(camera_.width, camera_.height);
+    field_ = nerf::makeHashField<T>(adaptedHash(options.hash, finest), channels_, options.seed);
+  } else if (options.field == "mlp") {
+    field_ = nerf::makeMlpField<T>(options.mlp, channels_, options.seed);
+  } else {
+    throw Error("benerf: unknown field '" + options.field + "' (known: hash, mlp)");
+  }
+  if (obs.contrast) {
+    c_on_ = obs.contrast->first;
+    c_off_ = obs.contrast->second;
+    known_contrast_ = true;
+  }
+  // Events of the exposure grouped by pixel (a counting sort keeps each pixel's time order).
+  const EventSpan ev = obs.events.sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us + 1);
+  const int W = camera_.width, H = camera_.height;
+  event_first_.assign(static_cast<size_t>(W) * H + 1, 0);
+  size_t kept = 0;
+  for (size_t i = 0; i < ev.size(); ++i) {
+    if (ev.x[i] < W && ev.y[i] < H) {
+      ++event_first_[static_cast<size_t>(ev.y[i]) * W + ev.x[i] + 1];
+      ++kept;
+    }
+  }
+  for (size_t p = 1; p < event_first_.size(); ++p) event_first_[p] += event_first_[p - 1];
+  event_t_.resize(kept);
+  event_level_.resize(kept);
+  std::vector<uint32_t> fill(event_first_.begin(), event_first_.end() - 1);
+  std::vector<double> level(static_cast<size_t>(W) * H, 0.0);
+  for (size_t i = 0; i < ev.size(); ++i) {
+    if (ev.x[i] >= W || ev.y[i] >= H) continue;
+    const size_t p = static_cast<size_t>(ev.y[i]) * W + ev.x[i];
+    level[p] += ev.p[i] > 0 ? (known_contrast_ ? c_on_ : 1.0) : -(known_contrast_ ? c_off_ : 1.0);
+    event_t_[fill[p]] = ev.t[i];
+    event_level_[fill[p]] = level[p];
+    ++fill[p];
+  }
+}
+
+template <typename T>
+double BenerfProblem<T>::accumulatedEvents(int pixel, int64_t t_begin, int64_t t_end) const {
+  const auto first = event_t_.begin() + event_first_[static_cast<size_t>(pixel)];
+  const auto last = event_t_.begin() + event_first_[static_cast<size_t>(pixel) + 1];
+  // The level after the last event before t (0 before the first).
+  const auto levelAt = [&](int64_t t) {
+    const auto it = std::lower_bound(first, last, t);
+    return it == first ? 0.0 : event_level_[static_cast<size_t>(it - event_t_.begin()) - 1];
+  };
+  return levelAt(t_end) - levelAt(t_begin);
+}
+
+template <typename T>
+typename BenerfProblem<T>::Batch BenerfProblem<T>::sampleBatch(std::mt19937_64& rng) const {
+  Batch b;
+  const int pixels = camera_.width * camera_.height;
+  std::uniform_int_distribution<int> pixel(0, pixels - 1);
+  const int blur_pixels = std::max(1, options_.blur_rays / views_);
+  for (int i = 0; i < blur_pixels; ++i) b.blur_pixels.push_back(pixel(rng));
+  for (int i = 0; i < options_.event_rays; ++i) b.event_pixels.push_back(pixel(rng));
+  const int64_t t0 = trajectory_.beginUs(), t1 = trajectory_.endUs();
+  const int64_t length = std::max<int64_t>(1, static_cast<int64_t>(std::llround(options_.alpha * static_cast<double>(t1 - t0))));
+  std::uniform_int_distribution<int64_t> begin(t0, std::max(t0, t1 - length));
+  b.window_begin = begin(rng);
+  b.window_end = std::min(t1, b.window_begin + length);
+  const size_t rays = b.blur_pixels.size() * static_cast<size_t>(views_) + 2 * b.event_pixels.size();
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  b.jitter.resize(rays * static_cast<size_t>(options_.samples));
+  for (float& j : b.jitter) j = u(rng);
+  return b;
+}
+
+template <typename T>
+typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, Eigen::VectorXd* knot_gradient) {
+  using Matrix = typename nerf::RadianceField<T>::Matrix;
+  const int C = channels_, S = options_.samples, V = views_;
+  const int W = camera_.width;
+  const int Pb = static_cast<int>(batch.blur_pixels.size()), Pe = static_cast<int>(batch.event_pixels.size());
+  const int R = Pb * V + 2 * Pe;
+  // Poses: the V virtual views, then the event window's ends.
+  std::vector<double> s(static_cast<size_t>(V + 2));
+  for (int k = 0; k < V; ++k) s[static_cast<size_t>(k)] = (k + 0.5) / V;
+  s[static_cast<size_t>(V)] = trajectory_.normalizedTime(batch.window_begin);
+  s[static_cast<size_t>(V + 1)] = trajectory_.normalizedTime(batch.window_end);
+  std::vector<SE3> poses(s.size());
+  std::vector<KnotJacobians> jacobians(s.size());
+  for (size_t k = 0; k < s.size(); ++k) poses[k] = trajectory_.evaluate(s[k], knot_gradient ? &jacobians[k] : nullptr);
+  // Ray r: pixel and pose index.
+  const auto rayPixel = [&](int r) {
+    if (r < Pb * V) return batch.blur_pixels[static_cast<size_t>(r / V)];
+    return batch.event_pixels[static_cast<size_t>((r - Pb * V) / 2)];
+  };
+  const auto rayPose = [&](int r) { return r < Pb * V ? r % V : V + (r - Pb * V) % 2; };
+
+  Matrix positions(3, static_cast<Eigen::Index>(R) * S);
+  std::vector<T> ts(static_cast<size_t>(R) * S), delta(static_cast<size_t>(R) * S);
+  std::vector<Eigen::Vector3d> directions(static_cast<size_t>(R));  // NDC d of each ray
+#pragma omp parallel for schedule(static)
+  for (int r = 0; r < R; ++r) {
+    const int p = rayPixel(r);
+    const nerf::NdcRay ray = nerf::toNdc(nerf::worldRay(camera_, poses[static_cast<size_t>(rayPose(r))], p % W, p / W), camera_, options_.near);
+    directions[static_cast<size_t>(r)] = ray.direction;
+    const size_t o = static_cast<size_t>(r) * S;
+    sampleRayInto<T>(ray, S, &batch.jitter[o], positions, static_cast<Eigen::Index>(o), &ts[o], &delta[o]);
+  }
+  if (knot_gradient) field_->zeroGradients();
+  const Matrix out = field_->forward(positions);
+
+  // Render every ray.
+  const nerf::RenderSettings settings{};
+  std::vector<nerf::RayRender<T>> renders(static_cast<size_t>(R));
+  std::vector<T> sigma(static_cast<size_t>(R) * S), colours(static_cast<size_t>(R) * S * C);
+#pragma omp parallel for schedule(static)
+  for (int r = 0; r < R; ++r) {
+    for (int j = 0; j < S; ++j) {
+      const Eigen::Index col = static_cast<Eigen::Index>(r) * S + j;
+      sigma[static_cast<size_t>(col)] = out(0, col);
+      for (int c = 0; c < C; ++c) colours[static_cast<size_t>(col) * C + c] = out(1 + c, col);
+    }
+    const size_t o = static_cast<size_t>(r) * S;
+    renders[static_cast<size_t>(r)] = nerf::renderRay(&sigma[o], &colours[o * C], &delta[o], static_cast<const T*>(nullptr), static_cast<size_t>(S), C, settings);
+  }
+
+  Loss loss;
+  std::vector<T> d_colour(static_cast<size_t>(R) * 3, T(0));  // dL/d(rendered colour) per ray
+  // Blur term: the mean of the V renders against the blurry pixel.
+  for (int i = 0; i < Pb; ++i) {
+    const int p = batch.blur_pixels[static_cast<size_t>(i)];
+    const float* b = blurry_.ptr<float>(p / W) + (p % W) * C;
+    for (int c = 0; c < C; ++c) {
+      T mean = 0;
+      for (int k = 0; k < V; ++k) mean += renders[static_cast<size_t>(i * V + k)].colour[c];
+      mean /= T(V);
+      const T e = mean - static_cast<T>(b[c]);
+      loss.blur += static_cast<double>(e * e) / (Pb * C);
+      const T g = T(2) * e / static_cast<T>(Pb * C * V);
+      for (int k = 0; k < V; ++k) d_colour[static_cast<size_t>(i * V + k) * 3 + c] = g;
+    }
+  }
+  // Event term: accumulated events against the change of the log grey renders.
+  if (Pe > 0) {
+    std::vector<T> grey_a(static_cast<size_t>(Pe)), grey_b(static_cast<size_t>(Pe)), change(static_cast<size_t>(Pe));
+    std::vector<double> target(static_cast<size_t>(Pe));
+    double target_norm2 = 0;
+    T change_norm2 = 0;
+    for (int i = 0; i < Pe; ++i) {
+      const size_t ra = static_cast<size_t>(Pb * V + 2 * i);
+      grey_a[static_cast<size_t>(i)] = nerf::greyOf(renders[ra].colour, C);
+      grey_b[static_cast<size_t>(i)] = nerf::greyOf(renders[ra + 1].colour, C);
+      change[static_cast<size_t>(i)] = options_.log.logOf(grey_b[static_cast<size_t>(i)]) - options_.log.logOf(grey_a[static_cast<size_t>(i)]);
+      target[static_cast<size_t>(i)] = accumulatedEvents(batch.event_pixels[static_cast<size_t>(i)], batch.window_begin, batch.window_end);
+      target_norm2 += target[static_cast<size_t>(i)] * target[static_cast<size_t>(i)];
+      change_norm2 += change[static_cast<size_t>(i)] * change[static_cast<size_t>(i)];
+    }
+    std::vector<T> d_change(static_cast<size_t>(Pe));
+    // Normalised comparison unless the thresholds are known and normalisation is off; a window
+    // without events compares directly with zero change.
+    const bool normalise = target_norm2 > 0 && (options_.normalise_events || !known_contrast_);
+    if (normalise) {
+      const T tiny = T(1e-6);
+      const T norm = std::sqrt(change_norm2 + tiny * tiny);
+      const double target_norm = std::sqrt(target_norm2);
+      T dot = 0;
+      std::vector<T> g(static_cast<size_t>(Pe));
+      for (int i = 0; i < Pe; ++i) {
+        const T e = change[static_cast<size_t>(i)] / norm - static_cast<T>(target[static_cast<size_t>(i)] / target_norm);
+        loss.event += static_cast<double>(e * e) / Pe;
+        g[static_cast<size_t>(i)] = T(2) * e / static_cast<T>(Pe);
+        dot += change[static_cast<size_t>(i)] * g[static_cast<size_t>(i)];
+      }
+      for (int i = 0; i < Pe; ++i) {
+        d_change[static_cast<size_t>(i)] = g[static_cast<size_t>(i)] / norm - change[static_cast<size_t>(i)] * dot / (norm * norm * norm);
+      }
+    } else {
+      for (int i = 0; i < Pe; ++i) {
+        const T e = change[static_cast<size_t>(i)] - static_cast<T>(target[static_cast<size_t>(i)]);
+        loss.event += static_cast<double>(e * e) / Pe;
+        d_change[static_cast<size_t>(i)] = T(2) * e / static_cast<T>(Pe);
+      }
+    }
+    const T beta = static_cast<T>(options_.beta);
+    for (int i = 0; i < Pe; ++i) {
+      const size_t ra = static_cast<size_t>(Pb * V + 2 * i);
+      const T d = beta * d_change[static_cast<size_t>(i)];
+      nerf::greyBackward(-d * options_.log.logSlope(grey_a[static_cast<size_t>(i)]), C, &d_colour[ra * 3]);
+      nerf::greyBackward(d * options_.log.logSlope(grey_b[static_cast<size_t>(i)]), C, &d_colour[(ra + 1) * 3]);
+    }
+  }
+  loss.total = loss.blur + options_.beta * loss.event;
+  if (!knot_gradient) return loss;
+
+  // Back through the renderer and the field.
+  Matrix d_out(1 + C, static_cast<Eigen::Index>(R) * S);
+  // dL/d|d| per ray: the interval lengths scale with the NDC direction's length, tau_j = sigma_j
+  // (t_{j+1} - t_j) |d|, so dL/d|d| = sum_j dL/dsigma_j sigma_j / |d|.
+  std::vector<double> d_length(static_cast<size_t>(R), 0.0);
+#pragma omp parallel for schedule(static)
+  for (int r = 0; r < R; ++r) {
+    const size_t o = static_cast<size_t>(r) * S;
+    std::vector<T> d_sigma(static_cast<size_t>(S)), d_colours(static_cast<size_t>(S) * C);
+    nerf::renderRayBackward(&sigma[o], &colours[o * C], &delta[o], static_cast<size_t>(S), C, settings, renders[static_cast<size_t>(r)],
+                            &d_colour[static_cast<size_t>(r) * 3], d_sigma.data(), d_colours.data());
+    double dl = 0;
+    for (int j = 0; j < S; ++j) dl += static_cast<double>(d_sigma[static_cast<size_t>(j)] * sigma[o + static_cast<size_t>(j)]);
+    d_length[static_cast<size_t>(r)] = dl / directions[static_cast<size_t>(r)].norm();
+    for (int j = 0; j < S; ++j) {
+      d_out(0, static_cast<Eigen::Index>(o) + j) = d_sigma[static_cast<size_t>(j)];
+      for (int c = 0; c < C; ++c) d_out(1 + c, static_cast<Eigen::Index>(o) + j) = d_colours[static_cast<size_t>(j) * C + c];
+    }
+  }
+  const Matrix d_positions = field_->backward(d_out);
+
+  // Sample positions -> poses: p(t) is affine in t for a fixed pixel, so is its pose Jacobian:
+  // sum_j J(t_j)^T g_j = J(0)^T sum_j (1 - t_j) g_j + J(1)^T sum_j t_j g_j; and d = p(1) - p(0), so
+  // the length term adds (J(1) - J(0))^T (d / |d|) dL/d|d|.
+  const int threads = omp_get_max_threads();
+  std::vector<std::vector<Vector6>> pose_gradient(static_cast<size_t>(threads), std::vector<Vector6>(poses.size(), Vector6::Zero()));
+#pragma omp parallel for schedule(static)
+  for (int r = 0; r < R; ++r) {
+    Eigen::Vector3d g0 = Eigen::Vector3d::Zero(), g1 = Eigen::Vector3d::Zero();
+    for (int j = 0; j < S; ++j) {
+      const Eigen::Vector3d g = d_positions.col(static_cast<Eigen::Index>(r) * S + j).template cast<double>();
+      const double t = static_cast<double>(ts[static_cast<size_t>(r) * S + static_cast<size_t>(j)]);
+      g0 += (1 - t) * g;
+      g1 += t * g;
+    }
+    const Eigen::Vector3d& d = directions[static_cast<size_t>(r)];
+    const Eigen::Vector3d g_length = d / d.norm() * d_length[static_cast<size_t>(r)];
+    g0 -= g_length;
+    g1 += g_length;
+    if (g0.isZero(0) && g1.isZero(0)) continue;
+    const int p = rayPixel(r), k = rayPose(r);
+    const SE3& pose = poses[static_cast<size_t>(k)];
+    pose_gradient[static_cast<size_t>(omp_get_thread_num())][static_cast<size_t>(k)] +=
+        nerf::ndcPointPoseJacobian(camera_, pose, p % W, p / W, 0.0, options_.near).transpose() * g0 +
+        nerf::ndcPointPoseJacobian(camera_, pose, p % W, p / W, 1.0, options_.near).transpose() * g1;
+  }
+  knot_gradient->setZero(6 * static_cast<Eigen::Index>(trajectory_.knots().size()));
+  for (size_t k = 0; k < poses.size(); ++k) {
+    Vector6 g = Vector6::Zero();
+    for (const auto& per_thread : pose_gradient) g += per_thread[k];
+    const KnotJacobians& J = jacobians[k];
+    for (int i = 0; i < J.count; ++i) knot_gradient->segment<6>(6 * (J.first_knot + i)) += J.d_pose_d_knot[static_cast<size_t>(i)].transpose() * g;
+  }
+  return loss;
+}
+
+template <typename T>
+cv::Mat BenerfProblem<T>::render(int64_t t_us, cv::Mat* disparity) {
+  using Matrix = typename nerf::RadianceField<T>::Matrix;
+  const int C = channels_, S = options_.samples, W = camera_.width, H = camera_.height;
+  const SE3 pose = trajectory_.poseAt(t_us);
+  cv::Mat image(H, W, CV_MAKETYPE(CV_32F, C));
+  if (disparity) disparity->create(H, W, CV_32F);
+  const std::vector<float> centres(static_cast<size_t>(S), 0.5f);
+  const nerf::RenderSettings settings{};
+  const int rows_per_batch = std::max(1, 8192 / std::max(1, W));
+  for (int y0 = 0; y0 < H; y0 += rows_per_batch) {
+    const int rows = std::min(rows_per_batch, H - y0), R = rows * W;
+    Matrix positions(3, static_cast<Eigen::Index>(R) * S);
+    std::vector<T> ts(static_cast<size_t>(R) * S), delta(static_cast<size_t>(R) * S);
+#pragma omp parallel for schedule(static)
+    for (int r = 0; r < R; ++r) {
+      const nerf::NdcRay ray = nerf::toNdc(nerf::worldRay(camera_, pose, r % W, y0 + r / W), camera_, options_.near);
+      const size_t o = static_cast<size_t>(r) * S;
+      sampleRayInto<T>(ray, S, centres.data(), positions, static_cast<Eigen::Index>(o), &ts[o], &delta[o]);
+    }
+    const Matrix out = field_->forward(positions);
+#pragma omp parallel for schedule(static)
+    for (int r = 0; r < R; ++r) {
+      std::vector<T> sigma(static_cast<size_t>(S)), colours(static_cast<size_t>(S) * C);
+      for (int j = 0; j < S; ++j) {
+        const Eigen::Index col = static_cast<Eigen::Index>(r) * S + j;
+        sigma[static_cast<size_t>(j)] = out(0, col);
+        for (int c = 0; c < C; ++c) colours[static_cast<size_t>(j) * C + c] = out(1 + c, col);
+      }
+      const size_t o = static_cast<size_t>(r) * S;
+      const nerf::RayRender<T> f = nerf::renderRay(sigma.data(), colours.data(), &delta[o], &ts[o], static_cast<size_t>(S), C, settings);
+      const int y = y0 + r / W, x = r % W;
+      for (int c = 0; c < C; ++c) image.ptr<float>(y)[x * C + c] = static_cast<float>(f.colour[c]);
+      if (disparity) {
+        // Expected NDC parameter, the background at t = 1 (infinity); NDC z = 2t - 1 = 1 - 2 near / z.
+        const double t_mean = static_cast<double>(f.depth) + (1.0 - static_cast<double>(f.opacity));
+        disparity->at<float>(y, x) = static_cast<float>(std::max(0.0, 1.0 - t_mean) / options_.near);
+      }
+    }
+  }
+  return image;
+}
+
+template class BenerfProblem<float>;
+template class BenerfProblem<double>;
+
+// ---------------------------------------------------------------------------------------------
+// Training
+
+namespace {
+
+constexpr char kCheckpointMagic[8] = {'E', 'V', 'K', 'B', 'N', 'R', 'F', '1'};
+
+struct Checkpoint {
+  int iteration = 0;
+  int iterations = 0;
+  int views = 0;
+};
+
+void writeCheckpoint(const std::string& path, const Checkpoint& c, nerf::RadianceField<float>& field, const Trajectory& trajectory,
+                     const nerf::Adam<float>& field_adam, const nerf::Adam<double>& knot_adam, const std::mt19937_64& rng) {
+  const std::string tmp = path + ".partial";
+  {
+    std::ofstream out(tmp, std::ios::binary);
+    if (!out) throw Error(path + ": cannot write the checkpoint");
+    out.write(kCheckpointMagic, sizeof(kCheckpointMagic));
+    out.write(reinterpret_cast<const char*>(&c), sizeof(c));
+    for (const nerf::ParameterBlock<float>& b : field.parameters()) {
+      const uint64_t n = b.size;
+      out.write(reinterpret_cast<const char*>(&n), sizeof(n));
+      out.write(reinterpret_cast<const char*>(b.values), static_cast<std::streamsize>(b.size * sizeof(float)));
+    }
+    for (const SE3& k : trajectory.knots()) {
+      const double v[7] = {k.rotation().w(), k.rotation().x(), k.rotation().y(), k.rotation().z(), k.translation().x(), k.translation().y(), k.translation().z()};
+      out.write(reinterpret_cast<const char*>(v), sizeof(v));
+    }
+    field_adam.save(out);
+    knot_adam.save(out);
+    std::ostringstream state;
+    state << rng;
+    const std::string text = state.str();
+    const uint64_t n = text.size();
+    out.write(reinterpret_cast<const char*>(&n), sizeof(n));
+    out.write(text.data(), static_cast<std::streamsize>(n));
+    if (!out) throw Error(path + ": cannot write the checkpoint");
+  }
+  std::filesystem::rename(tmp, path);
+}
+
+Checkpoint readCheckpoint(const std::string& path, nerf::RadianceField<float>& field, Trajectory& trajectory, nerf::Adam<float>& field_adam,
+                          nerf::Adam<double>& knot_adam, std::mt19937_64& rng) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw Error(path + ": cannot open the checkpoint");
+  char magic[8];
+  in.read(magic, sizeof(magic));
+  if (!in || !std::equal(magic, magic + 8, kCheckpointMagic)) throw Error(path + ": not an evkit BeNeRF checkpoint");
+  Checkpoint c;
+  in.read(reinterpret_cast<char*>(&c), sizeof(c));
+  for (const nerf::ParameterBlock<float>& b : field.parameters()) {
+    uint64_t n = 0;
+    in.read(reinterpret_cast<char*>(&n), sizeof(n));
+    if (!in || n != b.size) throw Error(path + ": the checkpoint's field does not match these settings (byte " + std::to_string(static_cast<long long>(in.tellg())) + ")");
+    in.read(reinterpret_cast<char*>(b.values), static_cast<std::streamsize>(b.size * sizeof(float)));
+  }
+  for (SE3& k : trajectory.knots()) {
+    double v[7];
+    in.read(reinterpret_cast<char*>(v), sizeof(v));
+    k = SE3(Quaternion(v[0], v[1], v[2], v[3]), Vector3(v[4], v[5], v[6]));
+  }
+  field_adam.restore(in);
+  knot_adam.restore(in);
+  uint64_t n = 0;
+  in.read(reinterpret_cast<char*>(&n), sizeof(n));
+  if (!in || n > 100000) throw Error(path + ": truncated checkpoint");
+  std::string text(n, '\0');
+  in.read(text.data(), static_cast<std::streamsize>(n));
+  if (!in) throw Error(path + ": truncated checkpoint");
+  std::istringstream state(text);
+  state >> rng;
+  return c;
+}
+
+// The ground-truth frame nearest to mid-exposure, when there is one at the camera's size.
+const Frame* midGroundTruth(const Observation& obs) {
+  const Frame* best = nullptr;
+  const int64_t mid = obs.blurry.midExposure();
+  for (const Frame& g : obs.gt_frames) {
+    if (g.image.size() != obs.blurry.image.size() || g.image.channels() != obs.blurry.image.channels()) continue;
+    if (!best || std::llabs(g.exposure_start_us - mid) < std::llabs(best->exposure_start_us - mid)) best = &g;
+  }
+  return best;
+}
+
+}  // namespace
+
+DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& request) {
+  const auto start = std::chrono::steady_clock::now();
+  DeblurResult result;
+  const BenerfOptions& o = options_;
+  const int saved_threads = omp_get_max_threads();
+  if (o.threads > 0) omp_set_num_threads(o.threads);
+  struct RestoreThreads {
+    int n;
+    ~RestoreThreads() { omp_set_num_threads(n); }
+  } restore_threads{saved_threads};
+
+  int views = o.virtual_views;
+  if (views <= 0) {
+    const double blur = measureBlurLength(obs);
+    views = virtualViewsFor(blur);
+    result.parameters["blur_px_measured"] = blur;
+  }
+  BenerfProblem<float> problem(obs, o, views);
+  nerf::AdamOptions field_adam_options;
+  field_adam_options.learning_rate = o.field_lr;
+  nerf::Adam<float> field_adam(problem.field().parameters(), field_adam_options);
+  const size_t knot_values = 6 * problem.trajectory().knots().size();
+  Eigen::VectorXd knot_step = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(knot_values)), knot_gradient = knot_step;
+  nerf::AdamOptions knot_adam_options;
+  knot_adam_options.learning_rate = o.knot_lr;
+  knot_adam_options.epsilon = 1e-12;
+  nerf::Adam<double> knot_adam({nerf::ParameterBlock<double>{knot_step.data(), knot_gradient.data(), knot_values, nullptr, 1}}, knot_adam_options);
+  std::mt19937_64 rng(o.seed);
+
+  int iterations = o.iterations;
+  int first = 0;
+  if (!o.resume.empty()) {
+    const Checkpoint c = readCheckpoint(o.resume, problem.field(), problem.trajectory(), field_adam, knot_adam, rng);
+    if (c.views != views) throw Error(o.resume + ": the checkpoint used " + std::to_string(c.views) + " virtual views, these settings " + std::to_string(views));
+    first = c.iteration;
+    iterations = std::max(iterations, c.iterations);
+  }
+  const auto setSchedule = [&](int total) {
+    field_adam.options().decay_rate = knot_adam.options().decay_rate = o.lr_final;
+    field_adam.options().decay_steps = knot_adam.options().decay_steps = std::max(1, total);
+  };
+  setSchedule(iterations);
+  result.timings_s["setup"] = secondsSince(start);
+
+  const Frame* gt = midGroundTruth(obs);
+  const int psnr_every = gt ? std::max(1, iterations / 10) : 0;
+  const auto train_start = std::chrono::steady_clock::now();
+  double loss_sum = 0;
+  int loss_count = 0;
+  for (int it = first; it < iterations; ++it) {
+    const auto batch = problem.sampleBatch(rng);
+    const auto loss = problem.evaluate(batch, &knot_gradient);
+    if (!std::isfinite(loss.total) || !knot_gradient.allFinite()) {
+      throw Error("benerf: the loss or its gradient became " + std::string(std::isfinite(loss.total) ? "non-finite" : "NaN/Inf") +
+                  " at iteration " + std::to_string(it) + " (blur term " + std::to_string(loss.blur) + ", event term " +
+                  std::to_string(loss.event) + ")");
+    }
+    field_adam.step();
+    knot_step.setZero();
+    knot_adam.step();
+    problem.trajectory().applyKnotSteps(knot_step);
+    loss_sum += loss.total;
+    ++loss_count;
+    const int done = it + 1;
+    if (done % o.curve_every == 0 || done == iterations) {
+      result.curve.emplace_back(done, loss_sum / loss_count);
+      if (request.progress) request.progress(done, iterations, loss_sum / loss_count);
+      loss_sum = 0;
+      loss_count = 0;
+    }
+    if (psnr_every > 0 && (done % psnr_every == 0 || done == iterations)) {
+      result.curve_psnr.emplace_back(done, psnr(problem.render(obs.blurry.midExposure()), gt->image));
+    }
+    // A wall-time budget: after a few iterations, the count that fits (the schedule follows).
+    if (o.budget_seconds > 0 && done == first + 20) {
+      const double per_iteration = secondsSince(train_start) / 20;
+      iterations = std::max(done + 1, static_cast<int>((o.budget_seconds * 0.9 - secondsSince(start)) / per_iteration) + done);
+      setSchedule(iterations);
+    }
+    if (!o.checkpoint.empty() && (done % o.checkpoint_every == 0 || done == iterations)) {
+      writeCheckpoint(o.checkpoint, Checkpoint{done, iterations, views}, problem.field(), problem.trajectory(), field_adam, knot_adam, rng);
+    }
+  }
+  result.timings_s["train"] = secondsSince(train_start);
+
+  const auto render_start = std::chrono::steady_clock::now();
+  for (int64_t t : request.times_us) {
+    Frame f;
+    f.image = problem.render(t);
+    f.exposure_start_us = f.exposure_end_us = t;
+    f.bit_depth = obs.blurry.bit_depth;
+    result.frames.push_back(std::move(f));
+  }
+  problem.render(obs.blurry.midExposure(), &result.disparity);
+  result.timings_s["render"] = secondsSince(render_start);
+  std::vector<StampedPose> trajectory;
+  const int64_t t0 = obs.blurry.exposure_start_us, t1 = obs.blurry.exposure_end_us;
+  for (int k = 0; k <= 100; ++k) {
+    const int64_t t = t0 + (t1 - t0) * k / 100;
+    trajectory.push_back({t, problem.trajectory().poseAt(t)});
+  }
+  result.trajectory = std::move(trajectory);
+  size_t parameters = 0;
+  for (const auto& b : problem.field().parameters()) parameters += b.size;
+  result.parameters["iterations"] = iterations;
+  result.parameters["virtual_views"] = views;
+  result.parameters["field_parameters"] = static_cast<double>(parameters);
+  result.parameters["events"] = static_cast<double>(problem.eventsInExposure());
+  result.parameters["samples_per_ray"] = o.samples;
+  result.parameters["rays_per_step"] = std::max(1, o.blur_rays / views) * views + 2 * o.event_rays;
+  if (!result.curve.empty()) result.parameters["final_loss"] = result.curve.back().second;
+  result.timings_s["total"] = secondsSince(start);
+  return result;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Settings
+
+namespace {
+
+double settingNumber(const std::string& key, const std::string& value) {
+  try {
+    size_t used = 0;
+    const double v = std::stod(value, &used);
+    if (used == value.size() && std::isfinite(v)) return v;
+  } catch (const std::exception&) {
+  }
+  throw Error("benerf: setting " + key + "=" + value + " is not a number");
+}
+
+int settingInt(const std::string& key, const std::string& value, int min) {
+  const double v = settingNumber(key, value);
+  if (v != std::floor(v) || v < min || v > 1e9) throw Error("benerf: setting " + key + "=" + value + " must be an integer >= " + std::to_string(min));
+  return static_cast<int>(v);
+}
+
+}  // namespace
+
+std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
+  BenerfOptions o = benerfBudget("balanced");
+  if (const auto b = settings.find("budget"); b != settings.end()) {
+    const std::string& v = b->second;
+    if (!v.empty() && (std::isdigit(static_cast<unsigned char>(v[0])) != 0 || v[0] == '.')) {
+      o.budget_seconds = settingNumber("budget", v);
+      if (!(o.budget_seconds > 0)) throw Error("benerf: budget must be fast, balanced, quality or a positive number of seconds");
+      o.iterations = 1000000;
+    } else {
+      o = benerfBudget(v);
+    }
+  }
+  if (const auto p = settings.find("preset"); p != settings.end()) {
+    if (p->second == "synthetic") {
+      o.beta = 0.1;
+    } else if (p->second == "real") {
+      o.beta = 2.0;
+    } else {
+      throw Error("benerf: unknown preset '" + p->second + "' (known: synthetic, real)");
+    }
+  }
+  for (const auto& [key, value] : settings) {
+    if (key == "budget" || key == "preset") continue;
+    if (key == "field") {
+      if (value != "hash" && value != "mlp") throw Error("benerf: field must be hash or mlp, not '" + value + "'");
+      o.field = value;
+    } else if (key == "iterations") {
+      o.iterations = settingInt(key, value, 1);
+    } else if (key == "views") {
+      o.virtual_views = settingInt(key, value, 1);
+    } else if (key == "knots") {
+      o.knots = settingInt(key, value, 2);
+    } else if (key == "trajectory") {
+      try {
+        o.trajectory = parseTrajectoryKind(value);
+      } catch (const Error&) {
+        throw Error("benerf: trajectory must be cubic, split or linear, not '" + value + "'");
+      }
+    } else if (key == "alpha") {
+      o.alpha = settingNumber(key, value);
+      if (!(o.alpha > 0 && o.alpha <= 1)) throw Error("benerf: alpha must lie in (0, 1]");
+    } else if (key == "beta") {
+      o.beta = settingNumber(key, value);
+      if (!(o.beta >= 0)) throw Error("benerf: beta must be >= 0");
+    } else if (key == "normalise") {
+      o.normalise_events = settingNumber(key, value) != 0;
+    } else if (key == "rays") {
+      o.blur_rays = o.event_rays = settingInt(key, value, 1);
+    } else if (key == "samples") {
+      o.samples = settingInt(key, value, 2);
+    } else if (key == "levels") {
+      o.hash.grid.levels = settingInt(key, value, 1);
+    } else if (key == "table") {
+      o.hash.grid.log2_table = settingInt(key, value, 8);
+      if (o.hash.grid.log2_table > 24) throw Error("benerf: table (log2 entries) must be at most 24");
+    } else if (key == "resolution") {
+      o.finest_resolution = settingInt(key, value, 2);
+    } else if (key == "field_lr") {
+      o.field_lr = settingNumber(key, value);
+    } else if (key == "knot_lr") {
+      o.knot_lr = settingNumber(key, value);
+    } else if (key == "seed") {
+      o.seed = static_cast<uint64_t>(settingInt(key, value, 0));
+    } else if (key == "threads") {
+      o.threads = settingInt(key, value, 1);
+    } else if (key == "checkpoint") {
+      o.checkpoint = value;
+    } else if (key == "resume") {
+      o.resume = value;
+    } else if (key == "lin_log") {
+      o.log.lin_log = settingNumber(key, value) != 0;
+    } else {
+      throw Error("benerf: unknown setting '" + key +
+                  "' (known: budget, preset, field, iterations, views, knots, trajectory, alpha, beta, normalise, rays, samples, levels, "
+                  "table, resolution, field_lr, knot_lr, seed, threads, checkpoint, resume, lin_log)");
+    }
+  }
+  if (o.field == "mlp" && !settings.count("field_lr")) o.field_lr = 5e-4;  // the paper's rate for its MLP
+  return std::make_unique<BenerfDeblurrer>(o);
+}
+
+}  // namespace evkit

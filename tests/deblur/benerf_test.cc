@@ -1,0 +1,130 @@
+#include "evkit/deblur/benerf.h"
+
+#include <gtest/gtest.h>
+
+#include <omp.h>
+
+#include <cmath>
+#include <filesystem>
+
+#include "evkit/deblur/metrics.h"
+#include "evkit/deblur/observation.h"
+#include "evkit/events/error.h"
+#include "evkit/synth/generator.h"
+#include "test_util.h"
+
+namespace evkit {
+namespace {
+
+using test::ScratchDir;
+
+Observation makeObservation(int width, int height, double blur_px, uint64_t seed, const std::string& preset = "planes") {
+  ScratchDir dir;
+  synth::SynthOptions o;
+  o.width = width;
+  o.height = height;
+  o.exposure_us = 40000;
+  o.shake.blur_px = blur_px;
+  o.shake.seed = seed;
+  synth::writeObservation(synth::makePreset(preset, {}), o, dir / "obs");
+  return loadObservation(dir / "obs");
+}
+
+// A tiny field and batch: every gradient of the loss against central differences in double.
+BenerfOptions tinyOptions() {
+  BenerfOptions o;
+  o.hash.grid.levels = 3;
+  o.hash.grid.features = 2;
+  o.hash.grid.log2_table = 10;
+  o.hash.grid.base_resolution = 4;
+  o.hash.hidden = 8;
+  o.finest_resolution = 16;
+  o.knot_init = 0.05;
+  o.blur_rays = 9;
+  o.event_rays = 5;
+  o.samples = 8;
+  o.beta = 0.7;
+  return o;
+}
+
+double relativeError(double analytic, double numeric, double scale) { return std::abs(analytic - numeric) / scale; }
+
+void checkWholePipeline(const BenerfOptions& options) {
+  const Observation obs = makeObservation(24, 18, 4, 3);
+  BenerfProblem<double> problem(obs, options, 3);
+  // O(1) table features instead of the 1e-4 initialisation: the tiny MLP's ReLU kinks stay far
+  // from the finite differences' steps.
+  const nerf::ParameterBlock<double> table = problem.field().parameters().front();
+  for (size_t i = 0; i < table.size; ++i) table.values[i] *= 1e4;
+  std::mt19937_64 rng(5);
+  const auto batch = problem.sampleBatch(rng);
+  Eigen::VectorXd knot_gradient;
+  const auto loss = problem.evaluate(batch, &knot_gradient);
+  ASSERT_TRUE(std::isfinite(loss.total));
+  ASSERT_GT(loss.event, 0.0);
+  const double h = 1e-6;
+  // Knots: right perturbations knot_k exp(h e_i).
+  const Eigen::Index n = knot_gradient.size();
+  Eigen::VectorXd numeric(n);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    Eigen::VectorXd step = Eigen::VectorXd::Zero(n);
+    step[i] = h;
+    const std::vector<SE3> saved = problem.trajectory().knots();
+    problem.trajectory().applyKnotSteps(step);
+    const double plus = problem.evaluate(batch, nullptr).total;
+    problem.trajectory().knots() = saved;
+    problem.trajectory().applyKnotSteps(-step);
+    const double minus = problem.evaluate(batch, nullptr).total;
+    problem.trajectory().knots() = saved;
+    numeric[i] = (plus - minus) / (2 * h);
+  }
+  const double knot_scale = numeric.cwiseAbs().maxCoeff();
+  ASSERT_GT(knot_scale, 1e-6) << "the knots must influence the loss";
+  for (Eigen::Index i = 0; i < n; ++i) {
+    EXPECT_LE(relativeError(knot_gradient[i], numeric[i], knot_scale), 1e-5) << "knot value " << i << ": analytic " << knot_gradient[i]
+                                                                             << ", numeric " << numeric[i];
+  }
+  // Field parameters: every touched table entry's first feature and a spread of MLP weights.
+  problem.evaluate(batch, &knot_gradient);  // restores the gradients of the unperturbed problem
+  std::vector<std::pair<double*, double>> checks;
+  for (const auto& block : problem.field().parameters()) {
+    const size_t stride = block.touched ? block.row_size * 7 : std::max<size_t>(1, block.size / 6);
+    for (size_t i = 0; i < block.size; i += stride) {
+      if (block.gradients[i] != 0.0 || !block.touched) checks.emplace_back(&block.values[i], block.gradients[i]);
+    }
+  }
+  ASSERT_GT(checks.size(), 20u);
+  double field_scale = 0;
+  std::vector<double> field_numeric;
+  for (auto& [value, analytic] : checks) {
+    const double saved = *value;
+    *value = saved + h;
+    const double plus = problem.evaluate(batch, nullptr).total;
+    *value = saved - h;
+    const double minus = problem.evaluate(batch, nullptr).total;
+    *value = saved;
+    field_numeric.push_back((plus - minus) / (2 * h));
+    field_scale = std::max(field_scale, std::abs(field_numeric.back()));
+  }
+  ASSERT_GT(field_scale, 1e-6);
+  for (size_t k = 0; k < checks.size(); ++k) {
+    EXPECT_LE(relativeError(checks[k].second, field_numeric[k], field_scale), 1e-5)
+        << "field parameter " << k << ": analytic " << checks[k].second << ", numeric " << field_numeric[k];
+  }
+}
+
+TEST(Benerf, WholePipelineGradientsMatchCentralDifferencesWithNormalisedEvents) {
+  BenerfOptions o = tinyOptions();
+  o.normalise_events = true;
+  checkWholePipeline(o);
+}
+
+TEST(Benerf, WholePipelineGradientsMatchCentralDifferencesWithDirectEvents) {
+  BenerfOptions o = tinyOptions();
+  o.normalise_events = false;
+  o.trajectory = TrajectoryKind::kCubicSplit;
+  checkWholePipeline(o);
+}
+
+}  // namespace
+}  // namespace evkit
