@@ -324,8 +324,8 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
       std::vector<T> g(static_cast<size_t>(Pe));
       for (int i = 0; i < Pe; ++i) {
         const T e = change[static_cast<size_t>(i)] / norm - static_cast<T>(target[static_cast<size_t>(i)] / target_norm);
-        loss.event += static_cast<double>(e * e) / Pe;
-        g[static_cast<size_t>(i)] = T(2) * e / static_cast<T>(Pe);
+        loss.event += static_cast<double>(e * e);
+        g[static_cast<size_t>(i)] = T(2) * e;
         dot += change[static_cast<size_t>(i)] * g[static_cast<size_t>(i)];
       }
       for (int i = 0; i < Pe; ++i) {
@@ -619,9 +619,11 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
       iterations = std::max(done + 1, static_cast<int>((o.budget_seconds * 0.9 - secondsSince(start)) / per_iteration) + done);
       setSchedule(iterations);
     }
-    if (!o.checkpoint.empty() && (done % o.checkpoint_every == 0 || done == iterations)) {
+    const bool stop = o.stop_after > 0 && done >= o.stop_after;
+    if (!o.checkpoint.empty() && (done % o.checkpoint_every == 0 || done == iterations || stop)) {
       writeCheckpoint(o.checkpoint, Checkpoint{done, iterations, views}, problem.field(), problem.trajectory(), field_adam, knot_adam, rng);
     }
+    if (stop) break;
   }
   result.timings_s["train"] = secondsSince(train_start);
 
@@ -747,12 +749,14 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
       o.checkpoint = value;
     } else if (key == "resume") {
       o.resume = value;
+    } else if (key == "stop_after") {
+      o.stop_after = settingInt(key, value, 1);
     } else if (key == "lin_log") {
       o.log.lin_log = settingNumber(key, value) != 0;
     } else {
       throw Error("benerf: unknown setting '" + key +
                   "' (known: budget, preset, field, iterations, views, knots, trajectory, alpha, beta, normalise, rays, samples, levels, "
-                  "table, resolution, field_lr, knot_lr, seed, threads, checkpoint, resume, lin_log)");
+                  "table, resolution, field_lr, knot_lr, seed, threads, checkpoint, resume, stop_after, lin_log)");
     }
   }
   if (o.field == "mlp" && !settings.count("field_lr")) o.field_lr = 5e-4;  // the paper's rate for its MLP

@@ -128,3 +128,94 @@ TEST(Benerf, WholePipelineGradientsMatchCentralDifferencesWithDirectEvents) {
 
 }  // namespace
 }  // namespace evkit
+
+namespace evkit {
+namespace {
+
+// A tiny generated observation (64 x 48, 8 px of blur, known C = 0.2) and a small training
+// budget: enough to show the method working in seconds.
+const Observation& tinyScene() {
+  static const Observation obs = makeObservation(64, 48, 8, 1);
+  return obs;
+}
+
+BenerfOptions smallBudget() {
+  BenerfOptions o = benerfBudget("fast");
+  o.iterations = 500;
+  o.blur_rays = 256;
+  o.event_rays = 256;
+  o.samples = 16;
+  o.virtual_views = 8;
+  return o;
+}
+
+const Frame& gtMid(const Observation& obs) {
+  for (const Frame& f : obs.gt_frames) {
+    if (f.exposure_start_us == obs.blurry.midExposure()) return f;
+  }
+  throw Error("no ground truth at mid-exposure");
+}
+
+// Rotation of the exposure: R(start)^T R(end) as a rotation vector.
+Vector3 exposureRotation(const std::vector<StampedPose>& poses) {
+  return logSO3(poses.front().pose.rotation().conjugate() * poses.back().pose.rotation());
+}
+
+TEST(Benerf, MiddleFrameBeatsTheBlurryInputAndTheRotationIsRecovered) {
+  const Observation& obs = tinyScene();
+  BenerfDeblurrer benerf(smallBudget());
+  const DeblurResult r = benerf.run(obs, DeblurRequest{{obs.blurry.midExposure()}, {}});
+  ASSERT_EQ(r.frames.size(), 1u);
+  const Frame& gt = gtMid(obs);
+  const double gain = psnr(r.frames[0].image, gt.image) - psnr(obs.blurry.image, gt.image);
+  EXPECT_GE(gain, 3.0) << "BeNeRF " << psnr(r.frames[0].image, gt.image) << " dB, blurry " << psnr(obs.blurry.image, gt.image) << " dB";
+  // The rotation over the exposure (about 0.1 rad here): within 40% of the truth's length and
+  // 20 degrees of its axis (rotation and translation trade off on a distant scene).
+  ASSERT_TRUE(r.trajectory.has_value());
+  const Vector3 estimate = exposureRotation(*r.trajectory), truth = exposureRotation(obs.gt_poses);
+  EXPECT_NEAR(estimate.norm(), truth.norm(), 0.4 * truth.norm()) << "estimate " << estimate.transpose() << ", truth " << truth.transpose();
+  EXPECT_LT(std::acos(std::clamp(estimate.normalized().dot(truth.normalized()), -1.0, 1.0)), 20.0 * M_PI / 180.0)
+      << "estimate " << estimate.transpose() << ", truth " << truth.transpose();
+  // The outputs a user gets: a trajectory over the exposure, a disparity image, a falling loss.
+  EXPECT_EQ(r.disparity.size(), obs.blurry.image.size());
+  ASSERT_GE(r.curve.size(), 4u);
+  EXPECT_LT(r.curve.back().second, 0.5 * r.curve.front().second);
+  ASSERT_FALSE(r.curve_psnr.empty());
+  EXPECT_GT(r.curve_psnr.back().second, r.curve_psnr.front().second);
+}
+
+TEST(Benerf, DeterministicWithOneThreadAndASeed) {
+  const Observation& obs = tinyScene();
+  BenerfOptions o = smallBudget();
+  o.iterations = 30;
+  o.threads = 1;
+  const DeblurRequest request{{obs.blurry.midExposure()}, {}};
+  const DeblurResult a = BenerfDeblurrer(o).run(obs, request), b = BenerfDeblurrer(o).run(obs, request);
+  EXPECT_EQ(cv::norm(a.frames[0].image, b.frames[0].image, cv::NORM_INF), 0.0);
+  EXPECT_EQ(a.curve, b.curve);
+  o.seed = 2;
+  const DeblurResult c = BenerfDeblurrer(o).run(obs, request);
+  EXPECT_GT(cv::norm(a.frames[0].image, c.frames[0].image, cv::NORM_INF), 0.0);
+}
+
+TEST(Benerf, ResumingFromACheckpointContinuesTheSameRun) {
+  const Observation& obs = tinyScene();
+  ScratchDir dir;
+  BenerfOptions o = smallBudget();
+  o.iterations = 40;
+  o.threads = 1;
+  const DeblurRequest request{{obs.blurry.midExposure()}, {}};
+  const DeblurResult whole = BenerfDeblurrer(o).run(obs, request);
+  BenerfOptions first = o;
+  first.stop_after = 20;
+  first.checkpoint = dir / "ckpt";
+  BenerfDeblurrer(first).run(obs, request);
+  BenerfOptions second = o;
+  second.resume = first.checkpoint;
+  const DeblurResult resumed = BenerfDeblurrer(second).run(obs, request);
+  EXPECT_EQ(cv::norm(whole.frames[0].image, resumed.frames[0].image, cv::NORM_INF), 0.0);
+  EXPECT_FALSE(std::filesystem::exists(first.checkpoint + ".partial"));
+}
+
+}  // namespace
+}  // namespace evkit

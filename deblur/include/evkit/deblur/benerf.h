@@ -56,7 +56,7 @@ struct BenerfOptions {
   int event_rays = 1024;  // pixels of the event term per step (2 rays each)
   int samples = 32;       // stratified samples per ray
   double near = 1.0;      // NDC near plane
-  double field_lr = 1e-2, knot_lr = 1e-3;
+  double field_lr = 1e-2, knot_lr = 3e-3;
   double lr_final = 0.1;  // both rates decay exponentially to this fraction at the last iteration
   double budget_seconds = 0;  // > 0: the iteration count is chosen to fit this wall time
   uint64_t seed = 1;
@@ -66,6 +66,7 @@ struct BenerfOptions {
   // resume continues from one (the same observation and settings).
   std::string checkpoint, resume;
   int checkpoint_every = 500;
+  int stop_after = 0;  // > 0: stop (after checkpointing) at this iteration; resume continues the same run
   int curve_every = 25;  // training-curve points
 };
 
