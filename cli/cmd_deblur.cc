@@ -92,8 +92,9 @@ cv::Mat labelled(const cv::Mat& linear, const std::string& label, int channels) 
 int runDeblur(const Args& args) {
   po::options_description opts("options");
   addInputOptions(opts);
-  opts.add_options()("method", po::value<std::string>()->default_value("edi"), "blurry or edi")(
-      "set", po::value<std::vector<std::string>>()->composing(), "method setting KEY=VALUE (repeatable; edi: contrast, search, c_min, c_max, margin_us)")(
+  opts.add_options()("method", po::value<std::string>()->default_value("edi"), "blurry, edi or benerf")(
+      "set", po::value<std::vector<std::string>>()->composing(), "method setting KEY=VALUE (repeatable; edi: contrast, search, c_min, c_max, margin_us; benerf: budget=fast|balanced|quality|SECONDS, "
+      "preset=synthetic|real, field=hash|mlp, iterations, views, checkpoint, resume, ... see the README)")(
       "out", po::value<std::string>()->required(), "output folder");
   po::positional_options_description pos;
   pos.add("observation", 1);

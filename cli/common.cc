@@ -127,6 +127,11 @@ Progress::Progress(std::string label, std::optional<int64_t> total)
 
 Progress::~Progress() { finish(); }
 
+void Progress::update(int64_t done, const std::string& status) {
+  status_ = status;
+  update(done);
+}
+
 void Progress::update(int64_t done) {
   if (!enabled_) return;
   const auto now = std::chrono::steady_clock::now();
@@ -139,10 +144,10 @@ void Progress::update(int64_t done) {
     const int width = 30;
     const int filled = static_cast<int>(fraction * width);
     const double eta = fraction > 0 ? elapsed * (1.0 - fraction) / fraction : 0.0;
-    std::fprintf(stderr, "\r%s [%s%s] %3.0f%%  %s  %.0fs left   ", label_.c_str(),
+    std::fprintf(stderr, "\r%s [%s%s] %3.0f%%  %s%s%s  %.0fs left   ", label_.c_str(),
                  std::string(static_cast<size_t>(filled), '#').c_str(),
                  std::string(static_cast<size_t>(width - filled), ' ').c_str(), 100.0 * fraction,
-                 withThousands(done).c_str(), eta);
+                 withThousands(done).c_str(), status_.empty() ? "" : "  ", status_.c_str(), eta);
   } else {
     std::fprintf(stderr, "\r%s %s  %.0fs   ", label_.c_str(), withThousands(done).c_str(), elapsed);
   }

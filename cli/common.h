@@ -59,6 +59,8 @@ class Progress {
   explicit Progress(std::string label, std::optional<int64_t> total = std::nullopt);
   ~Progress();
   void update(int64_t done);
+  // With a short status after the count (e.g. the current loss).
+  void update(int64_t done, const std::string& status);
   void finish();
 
  private:
@@ -67,6 +69,7 @@ class Progress {
   std::chrono::steady_clock::time_point start_, last_draw_;
   bool enabled_;
   bool drawn_ = false;
+  std::string status_;
 };
 
 int runInfo(const Args& args);

@@ -1,18 +1,23 @@
 #include "deblur_runner.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <sstream>
 
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
 
+#include "common.h"
 #include "evkit/deblur/metrics.h"
 #include "evkit/events/atomic_file.h"
 #include "evkit/events/error.h"
 #include "evkit/events/image_io.h"
+#include "evkit/events/npy.h"
 #include "evkit/spline/tum.h"
 
 namespace evkit::cli {
@@ -75,7 +80,16 @@ MethodReport runMethod(const Observation& obs, const std::string& method, const 
   report.method = method;
   auto deblurrer = makeDeblurrer(method, settings);
   const auto start = std::chrono::steady_clock::now();
-  report.result = deblurrer->run(obs, request);
+  DeblurRequest with_progress = request;
+  std::optional<Progress> progress;
+  with_progress.progress = [&](int done, int total, double loss) {
+    if (!progress) progress.emplace(method + " training", total);
+    char status[48];
+    std::snprintf(status, sizeof(status), "loss %.3g", loss);
+    progress->update(done, status);
+  };
+  report.result = deblurrer->run(obs, with_progress);
+  if (progress) progress->finish();
   report.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   const int64_t mid = obs.blurry.exposure_start_us + (obs.blurry.exposure_end_us - obs.blurry.exposure_start_us) / 2;
   double psnr_sum = 0, ssim_sum = 0;
@@ -114,6 +128,16 @@ MethodReport runMethod(const Observation& obs, const std::string& method, const 
     }
   }
   if (report.result.trajectory) writeTum(tmp + "/trajectory.txt", *report.result.trajectory);
+  if (!report.result.disparity.empty()) {
+    // disparity.npy: float32 (1 / depth, the method's arbitrary scale); disparity.png: 16-bit,
+    // scaled to the 99th percentile for viewing.
+    const cv::Mat& d = report.result.disparity;
+    writeNpy(tmp + "/disparity.npy", {d});
+    std::vector<float> values(d.begin<float>(), d.end<float>());
+    std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(values.size() * 99 / 100), values.end());
+    const float top = values[values.size() * 99 / 100];
+    writeImageFile(tmp + "/disparity.png", top > 0 ? cv::Mat(d / top) : d, 16);
+  }
   std::ostringstream j;
   j << "{\n  \"method\": " << jsonString(method) << ",\n  \"observation\": " << jsonString(obs.source) << ",\n  \"settings\": {";
   bool first = true;
@@ -132,6 +156,9 @@ MethodReport runMethod(const Observation& obs, const std::string& method, const 
     << ", \"brisque_mid\": " << jsonNumber(report.brisque_mid) << "},\n  \"training_curve\": [";
   first = true;
   for (const auto& [it, loss] : report.result.curve) j << (first ? "" : ", ") << "[" << it << ", " << jsonNumber(loss) << "]", first = false;
+  j << "],\n  \"training_psnr\": [";
+  first = true;
+  for (const auto& [it, p] : report.result.curve_psnr) j << (first ? "" : ", ") << "[" << it << ", " << jsonNumber(p) << "]", first = false;
   j << "]\n}\n";
   std::ofstream(tmp + "/summary.json") << j.str();
   out.commit();

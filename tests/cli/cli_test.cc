@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <fstream>
+
 #include "evkit/events/image_io.h"
 #include "evkit/events/io.h"
 #include "evkit/events/npy.h"
@@ -243,6 +245,40 @@ TEST(Cli, DeblurCompareAndMetricsOnASyntheticObservation) {
   EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --set speed=11 --out " + (dir / "x"), dir).exit_code, 2);
   EXPECT_EQ(runEvkit("deblur " + (dir / "nothing") + " --out " + (dir / "x"), dir).exit_code, 1);
   EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --times 5 --out " + (dir / "x"), dir).exit_code, 2);
+  EXPECT_FALSE(test::fs::exists(dir / "x"));
+}
+
+TEST(Cli, DeblurWithBenerfWritesFramesTrajectoryDisparityCurveAndCheckpoint) {
+  ScratchDir dir;
+  RunResult r = runEvkit("synth --preset planes --size 48x36 --blur-px 6 --exposure-us 20000 --out " + (dir / "obs"), dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  r = runEvkit("deblur " + (dir / "obs") + " --method benerf --set budget=fast --set iterations=30 --set rays=128 --set samples=8 " +
+                   "--set checkpoint=" + (dir / "ckpt") + " --frames 3 --out " + (dir / "nerf"),
+               dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.err.find("benerf: 3 frames"), std::string::npos) << r.err;
+  for (const char* file : {"1600000000000000.png", "1600000000010000.png", "1600000000020000.png", "latent.avi", "trajectory.txt",
+                           "disparity.npy", "disparity.png", "summary.json"}) {
+    EXPECT_TRUE(test::fs::exists(dir / (std::string("nerf/") + file))) << file;
+  }
+  EXPECT_TRUE(test::fs::exists(dir / "ckpt"));
+  const std::string summary = test::readText(dir / "nerf/summary.json");
+  EXPECT_NE(summary.find("\"training_curve\": [[25, "), std::string::npos) << summary;
+  EXPECT_NE(summary.find("\"training_psnr\": [["), std::string::npos) << summary;
+  EXPECT_NE(summary.find("\"virtual_views\": "), std::string::npos) << summary;
+  // Resuming from the finished checkpoint trains no further and gives the same frames.
+  r = runEvkit("deblur " + (dir / "obs") + " --method benerf --set budget=fast --set iterations=30 --set rays=128 --set samples=8 " +
+                   "--set resume=" + (dir / "ckpt") + " --frames 3 --out " + (dir / "again"),
+               dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(test::readText(dir / "again/1600000000010000.png"), test::readText(dir / "nerf/1600000000010000.png"));
+  // Mistakes: a bad budget or setting value is a usage error; a corrupt checkpoint one error line.
+  EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --method benerf --set budget=slow --out " + (dir / "x"), dir).exit_code, 2);
+  EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --method benerf --set alpha=2 --out " + (dir / "x"), dir).exit_code, 2);
+  std::ofstream(dir / "bad.ckpt") << "EVKBNRF1 not really";
+  r = runEvkit("deblur " + (dir / "obs") + " --method benerf --set resume=" + (dir / "bad.ckpt") + " --out " + (dir / "x"), dir);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("bad.ckpt"), std::string::npos) << r.err;
   EXPECT_FALSE(test::fs::exists(dir / "x"));
 }
 

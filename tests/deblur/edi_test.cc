@@ -147,8 +147,14 @@ TEST(Metrics, PsnrSsimAndBrisque) {
 }
 
 TEST(Deblurrer, RegistryAndSettingsAreChecked) {
-  EXPECT_EQ(deblurrerNames(), (std::vector<std::string>{"blurry", "edi"}));
+  EXPECT_EQ(deblurrerNames(), (std::vector<std::string>{"blurry", "edi", "benerf"}));
   EXPECT_THROW(makeDeblurrer("magic"), Error);
+  EXPECT_THROW(makeDeblurrer("benerf", {{"budget", "slow"}}), Error);
+  EXPECT_THROW(makeDeblurrer("benerf", {{"budget", "-5"}}), Error);
+  EXPECT_THROW(makeDeblurrer("benerf", {{"field", "voxels"}}), Error);
+  EXPECT_THROW(makeDeblurrer("benerf", {{"iterations", "2.5"}}), Error);
+  EXPECT_THROW(makeDeblurrer("benerf", {{"alpha", "0"}}), Error);
+  EXPECT_NO_THROW(makeDeblurrer("benerf", {{"budget", "90"}, {"preset", "real"}, {"trajectory", "split"}}));
   EXPECT_THROW(makeDeblurrer("edi", {{"contrasts", "0.2"}}), Error);
   EXPECT_THROW(makeDeblurrer("edi", {{"contrast", "-1"}}), Error);
   const Observation& obs = planes();

@@ -17,7 +17,7 @@ namespace evkit {
 struct DeblurRequest {
   std::vector<int64_t> times_us;  // inside the exposure
   // Called now and then by iterative methods: iteration done, iterations planned, current loss.
-  std::function<void(int, int, double)> progress;
+  std::function<void(int, int, double)> progress = {};
 };
 
 struct DeblurResult {
