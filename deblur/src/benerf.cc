@@ -89,10 +89,10 @@ void sampleRayInto(const nerf::NdcRay& ray, int S, const float* jitter, Eigen::M
 BenerfOptions benerfBudget(const std::string& name) {
   BenerfOptions o;
   if (name == "fast") {
-    o.iterations = 600;
-    o.blur_rays = 512;
-    o.event_rays = 512;
-    o.samples = 24;
+    o.iterations = 1000;
+    o.blur_rays = 1024;
+    o.event_rays = 1024;
+    o.samples = 16;
     o.hash.grid.levels = 8;
     o.hash.grid.log2_table = 15;
   } else if (name == "balanced") {
@@ -172,6 +172,8 @@ BenerfProblem<T>::BenerfProblem(const Observation& obs, const BenerfOptions& opt
     c_off_ = obs.contrast->second;
     known_contrast_ = true;
   }
+  normalised_ = !known_contrast_ || options.event_form == BenerfOptions::EventForm::kNormalised;
+  beta_ = options.beta >= 0 ? options.beta : (normalised_ ? 2.0 : 1.0);
   // Events of the exposure grouped by pixel (a counting sort keeps each pixel's time order).
   const EventSpan ev = obs.events.sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us + 1);
   const int W = camera_.width, H = camera_.height;
@@ -315,7 +317,7 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
     std::vector<T> d_change(static_cast<size_t>(Pe));
     // Normalised comparison unless the thresholds are known and normalisation is off; a window
     // without events compares directly with zero change.
-    const bool normalise = target_norm2 > 0 && (options_.normalise_events || !known_contrast_);
+    const bool normalise = target_norm2 > 0 && normalised_;
     if (normalise) {
       const T tiny = T(1e-6);
       const T norm = std::sqrt(change_norm2 + tiny * tiny);
@@ -324,8 +326,8 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
       std::vector<T> g(static_cast<size_t>(Pe));
       for (int i = 0; i < Pe; ++i) {
         const T e = change[static_cast<size_t>(i)] / norm - static_cast<T>(target[static_cast<size_t>(i)] / target_norm);
-        loss.event += static_cast<double>(e * e);
-        g[static_cast<size_t>(i)] = T(2) * e;
+        loss.event += static_cast<double>(e * e) / Pe;
+        g[static_cast<size_t>(i)] = T(2) * e / static_cast<T>(Pe);
         dot += change[static_cast<size_t>(i)] * g[static_cast<size_t>(i)];
       }
       for (int i = 0; i < Pe; ++i) {
@@ -338,7 +340,7 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
         d_change[static_cast<size_t>(i)] = T(2) * e / static_cast<T>(Pe);
       }
     }
-    const T beta = static_cast<T>(options_.beta);
+    const T beta = static_cast<T>(beta_);
     for (int i = 0; i < Pe; ++i) {
       const size_t ra = static_cast<size_t>(Pb * V + 2 * i);
       const T d = beta * d_change[static_cast<size_t>(i)];
@@ -346,7 +348,7 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
       nerf::greyBackward(d * options_.log.logSlope(grey_b[static_cast<size_t>(i)]), C, &d_colour[(ra + 1) * 3]);
     }
   }
-  loss.total = loss.blur + options_.beta * loss.event;
+  loss.total = loss.blur + beta_ * loss.event;
   if (!knot_gradient) return loss;
 
   // Back through the renderer and the field.
@@ -651,6 +653,8 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
   result.parameters["field_parameters"] = static_cast<double>(parameters);
   result.parameters["events"] = static_cast<double>(problem.eventsInExposure());
   result.parameters["samples_per_ray"] = o.samples;
+  result.parameters["beta"] = problem.beta();
+  result.parameters["events_normalised"] = problem.normalisedEvents() ? 1.0 : 0.0;
   result.parameters["rays_per_step"] = std::max(1, o.blur_rays / views) * views + 2 * o.event_rays;
   if (!result.curve.empty()) result.parameters["final_loss"] = result.curve.back().second;
   result.timings_s["total"] = secondsSince(start);
@@ -694,9 +698,9 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
   }
   if (const auto p = settings.find("preset"); p != settings.end()) {
     if (p->second == "synthetic") {
-      o.beta = 0.1;
+      o.event_form = BenerfOptions::EventForm::kDirect;
     } else if (p->second == "real") {
-      o.beta = 2.0;
+      o.event_form = BenerfOptions::EventForm::kNormalised;
     } else {
       throw Error("benerf: unknown preset '" + p->second + "' (known: synthetic, real)");
     }
@@ -725,7 +729,7 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
       o.beta = settingNumber(key, value);
       if (!(o.beta >= 0)) throw Error("benerf: beta must be >= 0");
     } else if (key == "normalise") {
-      o.normalise_events = settingNumber(key, value) != 0;
+      o.event_form = settingNumber(key, value) != 0 ? BenerfOptions::EventForm::kNormalised : BenerfOptions::EventForm::kDirect;
     } else if (key == "rays") {
       o.blur_rays = o.event_rays = settingInt(key, value, 1);
     } else if (key == "samples") {

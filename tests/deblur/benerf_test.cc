@@ -115,13 +115,13 @@ void checkWholePipeline(const BenerfOptions& options) {
 
 TEST(Benerf, WholePipelineGradientsMatchCentralDifferencesWithNormalisedEvents) {
   BenerfOptions o = tinyOptions();
-  o.normalise_events = true;
+  o.event_form = BenerfOptions::EventForm::kNormalised;
   checkWholePipeline(o);
 }
 
 TEST(Benerf, WholePipelineGradientsMatchCentralDifferencesWithDirectEvents) {
   BenerfOptions o = tinyOptions();
-  o.normalise_events = false;
+  o.event_form = BenerfOptions::EventForm::kDirect;
   o.trajectory = TrajectoryKind::kCubicSplit;
   checkWholePipeline(o);
 }

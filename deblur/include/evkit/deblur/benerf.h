@@ -11,8 +11,8 @@
 //  - event term: the events of a random window of length alpha T, accumulated per pixel (C_on n_on
 //    - C_off n_off with known thresholds, n_on - n_off otherwise), against the change of the shared
 //    log mapping of the grey renders at the window's ends, log I(t_b) - log I(t_a); both
-//    L2-normalised over the batch (the paper), or compared directly when the thresholds are known
-//    and normalisation is off (the authors' code on synthetic data);
+//    L2-normalised over the batch (the paper; the authors' code on real data), or compared directly
+//    when the thresholds are known (the authors' code on synthetic data);
 //    L_e = mean over pixels of the squared difference;
 //  - L = L_p + beta L_e; two Adam optimisers (field; knots as right-perturbation steps) with
 //    exponentially decaying learning rates.
@@ -48,9 +48,15 @@ struct BenerfOptions {
   int knots = 4;
   double knot_init = 0.01;  // knots start at exp(u), u uniform in [-knot_init, knot_init]^6
   int virtual_views = 0;    // n; 0: adapted to the blur length (measured from the events)
-  double alpha = 0.1;       // event window, fraction of the exposure
-  double beta = 0.1;        // weight of the event term
-  bool normalise_events = true;
+  double alpha = 0.1;  // event window, fraction of the exposure
+  // The event term's form: kDirect compares C-weighted events with the log change (the authors'
+  // code on synthetic data; needs known thresholds), kNormalised compares both L2-normalised over
+  // the batch (the paper; real data); kAuto: direct when the observation has contrast.txt.
+  enum class EventForm { kAuto, kDirect, kNormalised };
+  EventForm event_form = EventForm::kAuto;
+  // Weight of the event term; < 0: by form, 1 direct (measured: 0.1 and 10 lose 2-6 dB on the tiny
+  // scene at this loss scale), 2 normalised (the paper's value for real data).
+  double beta = -1;
   int iterations = 2000;
   int blur_rays = 1024;   // split over the n views: blur_rays / n pixels per step
   int event_rays = 1024;  // pixels of the event term per step (2 rays each)
@@ -112,6 +118,8 @@ class BenerfProblem {
   const nerf::PinholeCamera& camera() const { return camera_; }
   int virtualViews() const { return views_; }
   int64_t eventsInExposure() const { return static_cast<int64_t>(event_t_.size()); }
+  bool normalisedEvents() const { return normalised_; }
+  double beta() const { return beta_; }
 
  private:
   double accumulatedEvents(int pixel, int64_t t_begin, int64_t t_end) const;
@@ -124,6 +132,8 @@ class BenerfProblem {
   std::unique_ptr<nerf::RadianceField<T>> field_;
   double c_on_ = 1, c_off_ = 1;
   bool known_contrast_ = false;
+  bool normalised_ = true;  // the event term's form
+  double beta_ = 1;
   // Events of the exposure by pixel: event_first_[p] .. event_first_[p + 1] into event_t_ and
   // event_level_ (the accumulated polarity after the event).
   std::vector<uint32_t> event_first_;
