@@ -219,3 +219,39 @@ TEST(Benerf, ResumingFromACheckpointContinuesTheSameRun) {
 
 }  // namespace
 }  // namespace evkit
+
+namespace evkit {
+namespace {
+
+// Hard inputs: black, saturated and texture-less frames, without events or with a burst at one
+// pixel; every output stays finite.
+TEST(Benerf, NoNanOnBlackSaturatedTexturelessOrEventFreeInputs) {
+  BenerfOptions o = smallBudget();
+  o.iterations = 25;
+  o.blur_rays = 64;
+  o.event_rays = 64;
+  o.virtual_views = 0;  // exercise the blur-length measurement on these inputs too
+  o.threads = 1;
+  for (const float level : {0.0f, 1.0f, 0.4f}) {
+    for (const bool with_events : {false, true}) {
+      Observation obs;
+      obs.blurry.image = cv::Mat(24, 32, CV_32F, cv::Scalar(level));
+      obs.blurry.exposure_start_us = 1000;
+      obs.blurry.exposure_end_us = 21000;
+      obs.camera = Calibration{29, 29, 15.5, 11.5, {}};
+      obs.events = EventStore(SensorSize{32, 24});
+      if (with_events) {
+        for (int k = 0; k < 50; ++k) obs.events.push_back(1000 + 400 * k, 5, 7, k % 2 ? 1 : -1);
+        obs.contrast = std::make_pair(0.2, 0.2);
+      }
+      const DeblurResult r = BenerfDeblurrer(o).run(obs, DeblurRequest{{1000, 11000, 21000}, {}});
+      ASSERT_EQ(r.frames.size(), 3u);
+      for (const Frame& f : r.frames) EXPECT_TRUE(cv::checkRange(f.image)) << "level " << level << ", events " << with_events;
+      EXPECT_TRUE(cv::checkRange(r.disparity));
+      for (const auto& [it, loss] : r.curve) EXPECT_TRUE(std::isfinite(loss)) << "iteration " << it;
+    }
+  }
+}
+
+}  // namespace
+}  // namespace evkit
