@@ -587,7 +587,7 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
   result.timings_s["setup"] = secondsSince(start);
 
   const Frame* gt = midGroundTruth(obs);
-  const int psnr_every = gt ? std::max(1, iterations / 10) : 0;
+  int psnr_every = gt ? std::max(1, iterations / 10) : 0;
   const auto train_start = std::chrono::steady_clock::now();
   double loss_sum = 0;
   int loss_count = 0;
@@ -620,6 +620,7 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
       const double per_iteration = secondsSince(train_start) / 20;
       iterations = std::max(done + 1, static_cast<int>((o.budget_seconds * 0.9 - secondsSince(start)) / per_iteration) + done);
       setSchedule(iterations);
+      if (gt) psnr_every = std::max(1, iterations / 10);
     }
     const bool stop = o.stop_after > 0 && done >= o.stop_after;
     if (!o.checkpoint.empty() && (done % o.checkpoint_every == 0 || done == iterations || stop)) {

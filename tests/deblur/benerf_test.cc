@@ -146,6 +146,7 @@ BenerfOptions smallBudget() {
   o.event_rays = 256;
   o.samples = 16;
   o.virtual_views = 8;
+  o.threads = 1;  // ctest runs two tests at once: no oversubscription (and deterministic)
   return o;
 }
 
