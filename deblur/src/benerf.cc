@@ -667,18 +667,10 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
 
 namespace {
 
-double settingNumber(const std::string& key, const std::string& value) {
-  try {
-    size_t used = 0;
-    const double v = std::stod(value, &used);
-    if (used == value.size() && std::isfinite(v)) return v;
-  } catch (const std::exception&) {
-  }
-  throw Error("benerf: setting " + key + "=" + value + " is not a number");
-}
+double number(const std::string& key, const std::string& value) { return settingNumber("benerf", key, value); }
 
 int settingInt(const std::string& key, const std::string& value, int min) {
-  const double v = settingNumber(key, value);
+  const double v = number(key, value);
   if (v != std::floor(v) || v < min || v > 1e9) throw Error("benerf: setting " + key + "=" + value + " must be an integer >= " + std::to_string(min));
   return static_cast<int>(v);
 }
@@ -690,7 +682,7 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
   if (const auto b = settings.find("budget"); b != settings.end()) {
     const std::string& v = b->second;
     if (!v.empty() && (std::isdigit(static_cast<unsigned char>(v[0])) != 0 || v[0] == '.')) {
-      o.budget_seconds = settingNumber("budget", v);
+      o.budget_seconds = number("budget", v);
       if (!(o.budget_seconds > 0)) throw Error("benerf: budget must be fast, balanced, quality or a positive number of seconds");
       o.iterations = 1000000;
     } else {
@@ -724,13 +716,13 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
         throw Error("benerf: trajectory must be cubic, split or linear, not '" + value + "'");
       }
     } else if (key == "alpha") {
-      o.alpha = settingNumber(key, value);
+      o.alpha = number(key, value);
       if (!(o.alpha > 0 && o.alpha <= 1)) throw Error("benerf: alpha must lie in (0, 1]");
     } else if (key == "beta") {
-      o.beta = settingNumber(key, value);
+      o.beta = number(key, value);
       if (!(o.beta >= 0)) throw Error("benerf: beta must be >= 0");
     } else if (key == "normalise") {
-      o.event_form = settingNumber(key, value) != 0 ? BenerfOptions::EventForm::kNormalised : BenerfOptions::EventForm::kDirect;
+      o.event_form = number(key, value) != 0 ? BenerfOptions::EventForm::kNormalised : BenerfOptions::EventForm::kDirect;
     } else if (key == "rays") {
       o.blur_rays = o.event_rays = settingInt(key, value, 1);
     } else if (key == "samples") {
@@ -743,9 +735,9 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
     } else if (key == "resolution") {
       o.finest_resolution = settingInt(key, value, 2);
     } else if (key == "field_lr") {
-      o.field_lr = settingNumber(key, value);
+      o.field_lr = number(key, value);
     } else if (key == "knot_lr") {
-      o.knot_lr = settingNumber(key, value);
+      o.knot_lr = number(key, value);
     } else if (key == "seed") {
       o.seed = static_cast<uint64_t>(settingInt(key, value, 0));
     } else if (key == "threads") {
@@ -757,7 +749,7 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
     } else if (key == "stop_after") {
       o.stop_after = settingInt(key, value, 1);
     } else if (key == "lin_log") {
-      o.log.lin_log = settingNumber(key, value) != 0;
+      o.log.lin_log = number(key, value) != 0;
     } else {
       throw Error("benerf: unknown setting '" + key +
                   "' (known: budget, preset, field, iterations, views, knots, trajectory, alpha, beta, normalise, rays, samples, levels, "

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 
 #include "evkit/deblur/benerf.h"
 #include "evkit/deblur/edi.h"
@@ -29,32 +30,22 @@ class BlurryDeblurrer final : public Deblurrer {
   }
 };
 
-double number(const std::string& method, const std::string& key, const std::string& value) {
-  try {
-    size_t used = 0;
-    const double v = std::stod(value, &used);
-    if (used == value.size()) return v;
-  } catch (const std::exception&) {
-  }
-  throw Error(method + ": setting " + key + "=" + value + " is not a number");
-}
-
 std::unique_ptr<Deblurrer> makeEdi(const MethodSettings& settings) {
   EdiOptions o;
   for (const auto& [key, value] : settings) {
     if (key == "contrast") {
       const size_t comma = value.find(',');
-      o.contrast_on = number("edi", key, value.substr(0, comma));
-      o.contrast_off = comma == std::string::npos ? *o.contrast_on : number("edi", key, value.substr(comma + 1));
+      o.contrast_on = settingNumber("edi", key, value.substr(0, comma));
+      o.contrast_off = comma == std::string::npos ? *o.contrast_on : settingNumber("edi", key, value.substr(comma + 1));
       if (!(*o.contrast_on > 0) || !(*o.contrast_off > 0)) throw Error("edi: contrast must be positive");
     } else if (key == "search") {
-      o.use_observation_contrast = number("edi", key, value) == 0;
+      o.use_observation_contrast = settingNumber("edi", key, value) == 0;
     } else if (key == "c_min") {
-      o.search_min = number("edi", key, value);
+      o.search_min = settingNumber("edi", key, value);
     } else if (key == "c_max") {
-      o.search_max = number("edi", key, value);
+      o.search_max = settingNumber("edi", key, value);
     } else if (key == "margin_us") {
-      o.margin_us = static_cast<int64_t>(number("edi", key, value));
+      o.margin_us = static_cast<int64_t>(settingNumber("edi", key, value));
     } else {
       throw Error("edi: unknown setting '" + key + "' (known: contrast=C[,C_off], search=1, c_min, c_max, margin_us)");
     }
@@ -64,6 +55,16 @@ std::unique_ptr<Deblurrer> makeEdi(const MethodSettings& settings) {
 }
 
 }  // namespace
+
+double settingNumber(const std::string& method, const std::string& key, const std::string& value) {
+  try {
+    size_t used = 0;
+    const double v = std::stod(value, &used);
+    if (used == value.size() && std::isfinite(v)) return v;
+  } catch (const std::exception&) {
+  }
+  throw Error(method + ": setting " + key + "=" + value + " is not a number");
+}
 
 std::vector<std::string> deblurrerNames() { return {"blurry", "edi", "benerf"}; }
 

@@ -34,6 +34,10 @@ struct DeblurResult {
 // its keys and rejects unknown ones.
 using MethodSettings = std::map<std::string, std::string>;
 
+// A setting's value as a finite number; throws evkit::Error "<method>: setting KEY=VALUE is not a
+// number" otherwise.
+double settingNumber(const std::string& method, const std::string& key, const std::string& value);
+
 class Deblurrer {
  public:
   virtual ~Deblurrer() = default;
