@@ -32,13 +32,6 @@ cv::Mat toFloat(const cv::Mat& image) {
   return f;
 }
 
-cv::Mat greyImage(const cv::Mat& image) {
-  if (image.channels() == 1) return toFloat(image);
-  cv::Mat g;
-  cv::cvtColor(toFloat(image), g, cv::COLOR_BGR2GRAY);
-  return g;
-}
-
 nerf::PinholeCamera pinhole(const Calibration& c, int width, int height) {
   nerf::PinholeCamera camera;
   camera.width = width;
@@ -120,7 +113,7 @@ double measureBlurLength(const Observation& obs) {
   DeblurRequest request;
   request.times_us = {obs.blurry.midExposure()};
   const DeblurResult r = edi.run(obs, request);
-  const cv::Mat grey = greyImage(r.frames.front().image);
+  const cv::Mat grey = toGrey(r.frames.front().image);  // frames are float32
   const LogMapping log;
   cv::Mat L(grey.size(), CV_32F);
   for (int y = 0; y < grey.rows; ++y) {

@@ -6,6 +6,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "evkit/deblur/metrics.h"
 #include "evkit/events/error.h"
 
 namespace evkit {
@@ -16,13 +17,6 @@ constexpr double kMaxExponent = 600.0;  // exp() stays finite in double
 
 double seconds(std::chrono::steady_clock::time_point since) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - since).count();
-}
-
-cv::Mat toGrey(const cv::Mat& image) {
-  if (image.channels() == 1) return image;
-  cv::Mat grey;
-  cv::cvtColor(image, grey, cv::COLOR_BGR2GRAY);  // 0.299 R + 0.587 G + 0.114 B, as the simulator
-  return grey;
 }
 
 cv::Mat gradientMagnitude(const cv::Mat& img) {

@@ -1,5 +1,7 @@
 #include "evkit/deblur/metrics.h"
 
+#include <opencv2/imgproc.hpp>
+
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -20,6 +22,13 @@ void checkPair(const cv::Mat& a, const cv::Mat& b) {
   }
 }
 }  // namespace
+
+cv::Mat toGrey(const cv::Mat& image) {
+  if (image.channels() == 1) return image;
+  cv::Mat grey;
+  cv::cvtColor(image, grey, cv::COLOR_BGR2GRAY);
+  return grey;
+}
 
 double psnr(const cv::Mat& image, const cv::Mat& reference) {
   checkPair(image, reference);
