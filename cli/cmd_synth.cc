@@ -14,9 +14,9 @@ using namespace evkit::synth;
 
 int runSynth(const Args& args) {
   po::options_description opts("options");
-  opts.add_options()("preset", po::value<std::string>(), "planes, box, rgbd, ground or text")(
+  opts.add_options()("preset", po::value<std::string>(), "planes, box, rgbd, ground, text or plain")(
       "scene", po::value<std::string>(), "scene description file (YAML or JSON; see the README)")(
-      "suite", po::value<std::string>(), "a named suite (standard: 5 scenes x blur 15 and 40 px) into OUT/<scene>_blur<px>")(
+      "suite", po::value<std::string>(), "a named suite into OUT/<name>: standard (5 scenes x blur 15 and 40 px), hard (9 hard cases), all")(
       "out", po::value<std::string>()->required(), "output folder")(
       "size", po::value<std::string>()->default_value("346x260"), "image size WxH")(
       "blur-px", po::value<double>()->default_value(30), "blur length: the longest image path of a point (px)")(
@@ -26,6 +26,10 @@ int runSynth(const Args& args) {
       "colour", po::bool_switch(), "colour scene and frames")(
       "contrast", po::value<double>()->default_value(0.2), "event threshold C (log units)")(
       "sigma", po::value<double>()->default_value(0.0), "threshold mismatch")(
+      "shot-noise-hz", po::value<double>()->default_value(0.0), "shot noise events per pixel per second")(
+      "leak-hz", po::value<double>()->default_value(0.0), "leak events per pixel per second")(
+      "gain", po::value<double>()->default_value(1.0), "radiance scale (< 1 dark, > 1 saturated highlights; frames clip at 1)")(
+      "drop-events", po::bool_switch(), "write no events (an exposure whose events were lost)")(
       "supersample", po::value<int>()->default_value(2), "rays per pixel per side (anti-aliasing)")(
       "image", po::value<std::string>(), "rgbd preset: colour image")(
       "depth", po::value<std::string>(), "rgbd preset: depth map (16-bit PNG)")(
@@ -51,10 +55,17 @@ int runSynth(const Args& args) {
   o.shake.seed = vm["seed"].as<uint64_t>();
   o.simulator.contrast_pos = o.simulator.contrast_neg = vm["contrast"].as<double>();
   o.simulator.sigma = vm["sigma"].as<double>();
+  o.simulator.shot_noise_rate_hz = vm["shot-noise-hz"].as<double>();
+  o.simulator.leak_rate_hz = vm["leak-hz"].as<double>();
+  o.gain = vm["gain"].as<double>();
+  o.drop_events = vm["drop-events"].as<bool>();
   o.simulator.seed = o.shake.seed;
   o.supersample = vm["supersample"].as<int>();
-  if (!(o.shake.blur_px > 0) || o.exposure_us <= 0 || !(o.simulator.contrast_pos > 0) || o.supersample < 1) {
-    throw UsageError("--blur-px, --exposure-us, --contrast and --supersample must be positive");
+  if (!(o.shake.blur_px > 0) || o.exposure_us <= 0 || !(o.simulator.contrast_pos > 0) || o.supersample < 1 || !(o.gain > 0)) {
+    throw UsageError("--blur-px, --exposure-us, --contrast, --gain and --supersample must be positive");
+  }
+  if (!(o.simulator.sigma >= 0) || !(o.simulator.shot_noise_rate_hz >= 0) || !(o.simulator.leak_rate_hz >= 0)) {
+    throw UsageError("--sigma, --shot-noise-hz and --leak-hz must not be negative");
   }
   SceneOptions so;
   so.colour = vm["colour"].as<bool>();
@@ -79,10 +90,11 @@ int runSynth(const Args& args) {
       throw UsageError(std::string("--suite: ") + e.what());
     }
     for (const SuiteEntry& e : entries) {
-      o.shake.blur_px = e.blur_px;
-      char name[64];
-      std::snprintf(name, sizeof(name), "%s_blur%d", e.scene.c_str(), static_cast<int>(e.blur_px));
-      one(makePreset(e.scene, so), out + "/" + name, e.scene);
+      SynthOptions entry = o;
+      e.apply(entry);
+      const SynthReport r = writeObservation(makePreset(e.scene, so), entry, out + "/" + e.name);
+      std::fprintf(stderr, "%-18s blur %5.1f px  %9s events  -> %s/%s\n", e.name.c_str(), r.blur_px, withThousands(r.events).c_str(),
+                   out.c_str(), e.name.c_str());
     }
     return kExitOk;
   }

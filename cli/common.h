@@ -82,6 +82,7 @@ int runSynth(const Args& args);
 int runDeblur(const Args& args);
 int runCompare(const Args& args);
 int runMetrics(const Args& args);
+int runBench(const Args& args);
 
 // Building blocks the demo reuses.
 void printInfo(const std::string& path, std::optional<Format> format);

@@ -28,8 +28,9 @@ const std::map<std::string, Command>& commands() {
       {"frames", {evkit::cli::runFrames, "export a recording's frames as PNGs plus frames.csv of exposure times"}},
       {"simulate", {evkit::cli::runSimulate, "events and blurry frames from an image sequence or video (ESIM model)"}},
       {"synth", {evkit::cli::runSynth, "synthetic blurry frame + events + ground truth (an observation folder), or a suite"}},
-      {"deblur", {evkit::cli::runDeblur, "sharp frames from a blurry frame and its events (blurry, edi)"}},
+      {"deblur", {evkit::cli::runDeblur, "sharp frames from a blurry frame and its events (blurry, edi, benerf)"}},
       {"compare", {evkit::cli::runCompare, "run several deblurring methods on one observation: table + side-by-side PNG"}},
+      {"bench", {evkit::cli::runBench, "speed against error of every method and budget on a synthetic suite: csv, table, plot"}},
       {"metrics", {evkit::cli::runMetrics, "PSNR and SSIM of an image against a reference, BRISQUE without one"}},
       {"demo", {evkit::cli::runDemo, "the built-in default job: random recording -> formats -> info -> PNG"}},
   };

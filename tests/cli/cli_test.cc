@@ -4,6 +4,8 @@
 
 #include <fstream>
 
+#include <opencv2/imgcodecs.hpp>
+
 #include "evkit/events/image_io.h"
 #include "evkit/events/io.h"
 #include "evkit/events/npy.h"
@@ -299,6 +301,44 @@ TEST(Cli, DeblurStraightFromARecordingWithExtract) {
   EXPECT_TRUE(test::fs::exists(dir / "obs/events.h5"));
   EXPECT_EQ(readRecording(dir / "obs/events.h5").events.size(), rec.events.sliceTime(f.exposure_start_us, f.exposure_end_us + 1).size());
   EXPECT_EQ(runEvkit("deblur --recording " + (dir / "rec.h5") + " --frame 4 --out " + (dir / "o2"), dir).exit_code, 1);
+}
+
+TEST(Cli, BenchKeepsFinishedRunsWhenALaterOneFailsAndResumes) {
+  ScratchDir dir;
+  const std::string common = "bench --suite hard --scenes hard_blur2,hard_noevents --size 48x32 --budgets 12 --threads 1 --out " + (dir / "b");
+  // BeNeRF cannot start (its checkpoint is missing): its rows fail, blurry's and EDI's are kept.
+  RunResult r = runEvkit(common + " --methods blurry,edi,benerf --set benerf.resume=" + (dir / "missing.ckpt"), dir);
+  EXPECT_EQ(r.exit_code, 1) << r.err;
+  EXPECT_NE(r.err.find("2 runs failed"), std::string::npos) << r.err;
+  std::string csv = test::readText(dir / "b/results.csv");
+  EXPECT_EQ(lineCount(csv), 1 + 2 * 3) << csv;
+  EXPECT_NE(csv.find("hard,hard_blur2,tiny blur: 2 px,edi,-,ok,"), std::string::npos) << csv;
+  EXPECT_NE(csv.find("benerf,12 it,failed: "), std::string::npos) << csv;
+  std::string md = test::readText(dir / "b/results.md");
+  EXPECT_NE(md.find("| hard_noevents | no events in the exposure |"), std::string::npos) << md;
+  EXPECT_NE(md.find("benerf 12 it: failed"), std::string::npos) << md;
+  // Again without the bad setting: only BeNeRF runs (4 kept), and every row is healthy.
+  r = runEvkit(common + " --methods blurry,edi,benerf", dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.err.find("2 to run, 4 kept"), std::string::npos) << r.err;
+  csv = test::readText(dir / "b/results.csv");
+  EXPECT_EQ(lineCount(csv), 1 + 2 * 3) << csv;
+  EXPECT_EQ(csv.find("failed"), std::string::npos) << csv;
+  md = test::readText(dir / "b/results.md");
+  EXPECT_NE(md.find("| benerf | 12 it | "), std::string::npos) << md;
+  EXPECT_NE(md.find("| hard_blur2 | tiny blur: 2 px | "), std::string::npos) << md;
+  const cv::Mat plot = cv::imread(dir / "b/speed_vs_error.png");
+  EXPECT_EQ(plot.cols, 960);
+  EXPECT_TRUE(test::fs::exists(dir / "b/runs/hard_blur2/benerf_12it/trajectory.txt"));
+  EXPECT_TRUE(test::fs::exists(dir / "b/suite/hard_noevents/blurry.png"));
+  // With no events EDI returns the blurry frame itself.
+  EXPECT_EQ(test::readText(dir / "b/runs/hard_noevents/edi/1600000000050000.png"),
+            test::readText(dir / "b/runs/hard_noevents/blurry/1600000000050000.png"));
+  // Mistakes on the command line.
+  EXPECT_EQ(runEvkit("bench --methods edi,magic --out " + (dir / "x"), dir).exit_code, 2);
+  EXPECT_EQ(runEvkit("bench --budgets 10,slow --out " + (dir / "x"), dir).exit_code, 2);
+  EXPECT_EQ(runEvkit("bench --suite hard --scenes nope --out " + (dir / "x"), dir).exit_code, 2);
+  EXPECT_FALSE(test::fs::exists(dir / "x"));
 }
 
 TEST(Cli, DemoRunsTheDefaultJob) {

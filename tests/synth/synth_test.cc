@@ -2,6 +2,7 @@
 
 #include <cmath>
 
+#include "evkit/deblur/observation.h"
 #include "evkit/events/error.h"
 #include "evkit/events/image_io.h"
 #include "evkit/events/io.h"
@@ -150,6 +151,49 @@ TEST(Synth, RgbdPresetAndSceneFiles) {
   }
   EXPECT_THROW(makePreset("nope", {}), Error);
   EXPECT_EQ(suiteEntries("standard").size(), 10u);
+  EXPECT_EQ(suiteEntries("hard").size(), 9u);
+  EXPECT_EQ(suiteEntries("all").size(), 19u);
+  EXPECT_THROW(suiteEntries("easy"), Error);
+}
+
+TEST(Synth, HardCasesSaturateDarkenAndDropEvents) {
+  test::ScratchDir dir;
+  const auto make = [&](const std::string& name) {
+    for (const SuiteEntry& e : suiteEntries("hard")) {
+      if (e.name != name) continue;
+      SynthOptions o;
+      o.width = 48;
+      o.height = 32;
+      o.exposure_us = 20000;
+      e.apply(o);
+      o.shake.blur_px = 6;  // small: few renders
+      const SynthReport r = writeObservation(makePreset(e.scene, {}), o, dir / name);
+      return std::make_pair(r, loadObservation(dir / name));
+    }
+    throw std::runtime_error("no entry " + name);
+  };
+  double lo, hi;
+  // Saturated: the frames clip at 1 where the radiance (x3) exceeds it; the events do not.
+  auto [sat, sat_obs] = make("hard_saturated");
+  cv::minMaxLoc(sat_obs.blurry.image, &lo, &hi);
+  EXPECT_EQ(hi, 1.0);
+  EXPECT_GT(cv::countNonZero(sat_obs.blurry.image >= 1.0), 20);
+  EXPECT_GT(sat.events, 0);
+  // Dark: radiance x0.02.
+  auto [dark, dark_obs] = make("hard_dark");
+  cv::minMaxLoc(dark_obs.gt_frames.front().image, &lo, &hi);
+  EXPECT_LT(hi, 0.03);
+  EXPECT_GT(hi, 0.005);
+  // No events: the folder loads with an empty event file and a blurred frame.
+  auto [none, none_obs] = make("hard_noevents");
+  EXPECT_EQ(none.events, 0);
+  EXPECT_EQ(none_obs.events.size(), 0u);
+  EXPECT_GT(none.blur_px, 5);
+  // Noisy: the contrast file keeps the nominal C while the pixels' thresholds vary.
+  auto [noisy, noisy_obs] = make("hard_noisy");
+  ASSERT_TRUE(noisy_obs.contrast.has_value());
+  EXPECT_DOUBLE_EQ(noisy_obs.contrast->first, 0.2);
+  EXPECT_NE(test::readText(dir / "hard_noisy/gt/info.txt").find("shot_noise_hz 5"), std::string::npos);
 }
 
 }  // namespace

@@ -23,14 +23,16 @@ namespace {
 // The scene rendered along a trajectory: the simulator's programmatic source.
 class SceneSource final : public RenderSource {
  public:
-  SceneSource(const Scene& scene, const Calibration& camera, int w, int h, const Trajectory& traj, int supersample)
-      : scene_(scene), camera_(camera), w_(w), h_(h), traj_(traj) {
+  SceneSource(const Scene& scene, const Calibration& camera, int w, int h, const Trajectory& traj, int supersample, double gain)
+      : scene_(scene), camera_(camera), w_(w), h_(h), traj_(traj), gain_(gain) {
     options_.supersample = supersample;
   }
   SensorSize sensor() const override { return {w_, h_}; }
   cv::Mat render(int64_t t_us) override {
     ++renders_;
-    return synth::render(scene_, camera_, w_, h_, traj_.poseAt(t_us), options_);
+    cv::Mat image = synth::render(scene_, camera_, w_, h_, traj_.poseAt(t_us), options_);
+    if (gain_ != 1.0) image *= gain_;
+    return image;
   }
   int64_t renders() const { return renders_; }
 
@@ -39,6 +41,7 @@ class SceneSource final : public RenderSource {
   Calibration camera_;
   int w_, h_;
   const Trajectory& traj_;
+  double gain_;
   RenderOptions options_;
   int64_t renders_ = 0;
 };
@@ -119,7 +122,7 @@ SynthReport writeObservation(const Scene& scene, const SynthOptions& o, const st
   fs::create_directories(tmp + "/gt");
 
   // Events and the blurry frame: adaptive sampling of the rendered scene over the exposure.
-  SceneSource source(scene, camera, o.width, o.height, traj, o.supersample);
+  SceneSource source(scene, camera, o.width, o.height, traj, o.supersample, o.gain);
   DriverOptions driver;
   driver.simulator = o.simulator;
   driver.exposures = {{t0, t1}};
@@ -130,11 +133,11 @@ SynthReport writeObservation(const Scene& scene, const SynthOptions& o, const st
   uniform.min_step_us = uniform.max_step_us = std::clamp<int64_t>(
       static_cast<int64_t>(static_cast<double>(t1 - t0) * o.max_motion_px / std::max(report.blur_px, 1e-9)), 1, (t1 - t0) / 50);
   const SimulatorStats stats = simulateAdaptive(source, t0, t1, driver, uniform, [&](const EventStore& ev, const std::vector<Frame>& done) {
-    writer->write(ev.view());
+    if (!o.drop_events) writer->write(ev.view());
     if (!done.empty()) blurry = done.front().image;
   });
   writer->close();
-  report.events = stats.events;
+  report.events = o.drop_events ? 0 : stats.events;
   report.renders = source.renders();
   report.max_fraction_over_c = stats.max_fraction_over_c;
   writeImageFile(tmp + "/blurry.png", blurry, 16);
@@ -146,13 +149,18 @@ SynthReport writeObservation(const Scene& scene, const SynthOptions& o, const st
   // Ground truth: sharp frames, poses, knots, depth at mid-exposure.
   RenderOptions ro;
   ro.supersample = o.supersample;
+  const auto sharp_at = [&](int64_t t) {
+    cv::Mat image = render(scene, camera, o.width, o.height, traj.poseAt(t), ro);
+    if (o.gain != 1.0) image *= o.gain;
+    return image;
+  };
   const int sharp = std::max(2, o.sharp_frames);
   for (int k = 0; k < sharp; ++k) {
     const int64_t t = t0 + (t1 - t0) * k / (sharp - 1);
-    writeImageFile(tmp + "/gt/" + std::to_string(t) + ".png", render(scene, camera, o.width, o.height, traj.poseAt(t), ro), 16);
+    writeImageFile(tmp + "/gt/" + std::to_string(t) + ".png", sharp_at(t), 16);
   }
   const int64_t mid = t0 + (t1 - t0) / 2;
-  if (sharp % 2 == 0) writeImageFile(tmp + "/gt/" + std::to_string(mid) + ".png", render(scene, camera, o.width, o.height, traj.poseAt(mid), ro), 16);
+  if (sharp % 2 == 0) writeImageFile(tmp + "/gt/" + std::to_string(mid) + ".png", sharp_at(mid), 16);
   std::vector<int64_t> times;
   for (int k = 0; k < std::max(2, o.poses); ++k) times.push_back(t0 + (t1 - t0) * k / (std::max(2, o.poses) - 1));
   writeTum(tmp + "/gt/poses.txt", sampleTrajectory(traj, times));
@@ -166,7 +174,9 @@ SynthReport writeObservation(const Scene& scene, const SynthOptions& o, const st
   writeNpy(tmp + "/gt/depth.npy", depth.ptr<float>(), {static_cast<size_t>(o.height), static_cast<size_t>(o.width)});
   std::ostringstream info;
   info << "blur_px " << report.blur_px << "\nevents " << report.events << "\nrenders " << report.renders
-       << "\nmax_fraction_over_c " << report.max_fraction_over_c << "\nseed " << o.shake.seed << "\nknots_kind cubic\n"
+       << "\nmax_fraction_over_c " << report.max_fraction_over_c << "\ngain " << o.gain
+       << "\ncontrast " << o.simulator.contrast_pos << "\nsigma " << o.simulator.sigma << "\nshot_noise_hz "
+       << o.simulator.shot_noise_rate_hz << "\nleak_hz " << o.simulator.leak_rate_hz << "\ndrop_events " << o.drop_events << "\nseed " << o.shake.seed << "\nknots_kind cubic\n"
        << "knot_times " << t0 << ' ' << t1 << "\n";
   std::ofstream(tmp + "/gt/info.txt") << info.str();
   out.commit();

@@ -100,7 +100,7 @@ Calibration defaultCamera(int width, int height) {
   return Calibration{0.9 * width, 0.9 * width, (width - 1) / 2.0, (height - 1) / 2.0, {}};
 }
 
-std::vector<std::string> presetNames() { return {"planes", "box", "rgbd", "ground", "text"}; }
+std::vector<std::string> presetNames() { return {"planes", "box", "rgbd", "ground", "text", "plain"}; }
 
 Scene makePreset(const std::string& name, const SceneOptions& o) {
   Scene s;
@@ -128,6 +128,10 @@ Scene makePreset(const std::string& name, const SceneOptions& o) {
   } else if (name == "text") {
     s.rectangles.push_back(plane(Vector3(0, 0, 4.5), 10, 8, texture("noise", 0.02, 1, o, 0.35, 0.5)));
     s.rectangles.push_back(plane(Vector3(0, 0, 2.0), 2.0, 1.5, texture("text", 0.1, 6, o, 0.5, 0.9)));
+  } else if (name == "plain") {
+    s.rectangles.push_back(plane(Vector3(0, 0, 5), 14, 11, texture("noise", 0.02, 1, o, 0.5, 0.0)));
+    s.rectangles.push_back(plane(Vector3(-0.7, -0.2, 3.0), 0.8, 0.6, texture("checker", 0.125, 2, o, 0.5, 0.8)));
+    s.rectangles.push_back(plane(Vector3(0.9, 0.5, 2.5), 0.7, 0.5, texture("text", 0.1, 3, o, 0.5, 0.9)));
   } else {
     std::string known;
     for (const std::string& p : presetNames()) known += (known.empty() ? "" : ", ") + p;
@@ -208,12 +212,58 @@ Scene loadScene(const std::string& path, const SceneOptions& options) {
   return s;
 }
 
+void SuiteEntry::apply(SynthOptions& o) const {
+  o.shake.blur_px = blur_px;
+  o.gain = gain;
+  o.drop_events = drop_events;
+  o.simulator.contrast_pos = o.simulator.contrast_neg = contrast;
+  o.simulator.sigma = sigma;
+  o.simulator.shot_noise_rate_hz = shot_noise_hz;
+  o.simulator.leak_rate_hz = leak_hz;
+}
+
+std::vector<std::string> suiteNames() { return {"standard", "hard", "all"}; }
+
 std::vector<SuiteEntry> suiteEntries(const std::string& suite) {
-  if (suite != "standard") throw Error("unknown suite '" + suite + "' (known: standard)");
   std::vector<SuiteEntry> entries;
-  for (const std::string& scene : presetNames()) {
-    for (double blur : {15.0, 40.0}) entries.push_back({scene, blur});
+  if (suite == "standard" || suite == "all") {
+    for (const std::string& scene : presetNames()) {
+      if (scene == "plain") continue;
+      for (double blur : {15.0, 40.0}) {
+        SuiteEntry e;
+        e.name = scene + "_blur" + std::to_string(static_cast<int>(blur));
+        e.group = "standard";
+        e.scene = scene;
+        e.blur_px = blur;
+        entries.push_back(e);
+      }
+    }
   }
+  if (suite == "hard" || suite == "all") {
+    const auto hard = [&](const std::string& name, const std::string& scene, double blur, const std::string& what) -> SuiteEntry& {
+      SuiteEntry e;
+      e.name = "hard_" + name;
+      e.group = "hard";
+      e.scene = scene;
+      e.blur_px = blur;
+      e.what = what;
+      entries.push_back(e);
+      return entries.back();
+    };
+    hard("blur70", "planes", 70, "large blur: 70 px");
+    hard("blur2", "planes", 2, "tiny blur: 2 px");
+    hard("textureless", "plain", 40, "texture-less: a uniform wall with two small cards");
+    hard("saturated", "box", 40, "saturated highlights: radiance x3, frames clip at 1").gain = 3.0;
+    hard("dark", "planes", 40, "very dark: radiance x0.02").gain = 0.02;
+    SuiteEntry& noisy = hard("noisy", "planes", 40, "noisy events: threshold mismatch 0.04, shot noise 5 Hz, leak 1 Hz per pixel");
+    noisy.sigma = 0.04;
+    noisy.shot_noise_hz = 5;
+    noisy.leak_hz = 1;
+    hard("sparse", "planes", 40, "sparse events: C = 0.5").contrast = 0.5;
+    hard("dense", "planes", 40, "dense events: C = 0.08").contrast = 0.08;
+    hard("noevents", "planes", 40, "no events in the exposure").drop_events = true;
+  }
+  if (entries.empty()) throw Error("unknown suite '" + suite + "' (known: standard, hard, all)");
   return entries;
 }
 

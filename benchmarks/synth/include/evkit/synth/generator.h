@@ -42,7 +42,8 @@ struct SceneOptions {
 
 // Presets: planes (4 textured planes at 1.6-6 m), box (a box on a slanted ground plane before a
 // wall), rgbd (a textured height field), ground (a slanted ground plane and a wall), text (a text
-// plane before a noise wall).
+// plane before a noise wall), plain (a uniform wall with two small textured cards: texture-less
+// regions over most of the image).
 std::vector<std::string> presetNames();
 Scene makePreset(const std::string& name, const SceneOptions& options);
 Scene loadScene(const std::string& path, const SceneOptions& options);
@@ -79,6 +80,11 @@ struct SynthOptions {
   int supersample = 2;
   int sharp_frames = 3;  // ground-truth sharp frames evenly over the exposure (start, ..., end)
   int poses = 101;       // ground-truth poses (TUM)
+  // Radiance scale: below 1 a dark scene, above 1 saturated highlights. The frames (blurry and
+  // ground truth) clip at 1 as a sensor's full well does; the events see the unclipped radiance.
+  double gain = 1.0;
+  // Writes an empty event file (an exposure whose events were lost): the blurry frame is unchanged.
+  bool drop_events = false;
 };
 
 struct SynthReport {
@@ -95,11 +101,27 @@ struct SynthReport {
 // complete or not at all.
 SynthReport writeObservation(const Scene& scene, const SynthOptions& options, const std::string& dir);
 
-// A named suite: scenes x blur levels, each an observation folder <dir>/<scene>_blur<px>.
+// A named suite: observation folders <dir>/<name>.
+//  - standard: the 5 presets x blur {15, 40} px, noiseless events, C = 0.2 (<scene>_blur<px>);
+//  - hard: one hard case each (hard_<case>): blur 70 px, blur 2 px, texture-less, saturated
+//    highlights, a very dark scene, noisy events (mismatch, shot noise, leak), sparse events
+//    (C = 0.5), dense events (C = 0.08), an exposure without events;
+//  - all: both.
 struct SuiteEntry {
-  std::string scene;
-  double blur_px;
+  std::string name;   // folder name
+  std::string group;  // "standard" or "hard"
+  std::string scene;  // preset
+  double blur_px = 30;
+  std::string what;   // what makes it hard (empty for standard entries)
+  double gain = 1.0;
+  double contrast = 0.2;
+  double sigma = 0, shot_noise_hz = 0, leak_hz = 0;
+  bool drop_events = false;
+
+  // Sets the blur, gain, thresholds and noise of `options` (size, exposure, seed stay).
+  void apply(SynthOptions& options) const;
 };
-std::vector<SuiteEntry> suiteEntries(const std::string& suite);  // "standard": 5 scenes x {15, 40} px
+std::vector<std::string> suiteNames();
+std::vector<SuiteEntry> suiteEntries(const std::string& suite);
 
 }  // namespace evkit::synth

@@ -1,0 +1,422 @@
+#include "bench.h"
+
+#include <algorithm>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <set>
+#include <sstream>
+
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "common.h"
+#include "evkit/events/atomic_file.h"
+#include "evkit/events/error.h"
+#include "evkit/spline/lie.h"
+
+namespace evkit::cli {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string fixed(double v, int decimals) {
+  if (!std::isfinite(v)) return "-";
+  char buf[48];
+  std::snprintf(buf, sizeof(buf), "%.*f", decimals, v);
+  return buf;
+}
+
+// A budget token -> its label and the BeNeRF settings it stands for.
+std::pair<std::string, MethodSettings> parseBudget(const std::string& token) {
+  if (token == "fast" || token == "balanced" || token == "quality") return {token, {{"budget", token}}};
+  size_t used = 0;
+  double value = 0;
+  try {
+    value = std::stod(token, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  const std::string unit = token.substr(used);
+  if (used > 0 && value > 0 && std::isfinite(value)) {
+    if (unit.empty() && value == std::floor(value) && value <= 1e7) {
+      return {token + " it", {{"budget", "fast"}, {"iterations", token}}};
+    }
+    if (unit == "s") return {fixed(value, value == std::floor(value) ? 0 : 1) + " s", {{"budget", token.substr(0, used)}}};
+  }
+  throw UsageError("--budgets: '" + token + "' is not an iteration count, fast|balanced|quality or seconds (e.g. 60s)");
+}
+
+std::string csvField(const std::string& v) {
+  if (v.find_first_of(",\"\n") == std::string::npos) return v;
+  std::string out = "\"";
+  for (char c : v) {
+    if (c == '"') out += '"';
+    out += c == '\n' ? ' ' : c;
+  }
+  return out + "\"";
+}
+
+std::vector<std::string> csvSplit(const std::string& line) {
+  std::vector<std::string> fields(1);
+  bool quoted = false;
+  for (size_t i = 0; i < line.size(); ++i) {
+    const char c = line[i];
+    if (quoted) {
+      if (c == '"' && i + 1 < line.size() && line[i + 1] == '"') {
+        fields.back() += '"';
+        ++i;
+      } else if (c == '"') {
+        quoted = false;
+      } else {
+        fields.back() += c;
+      }
+    } else if (c == '"') {
+      quoted = true;
+    } else if (c == ',') {
+      fields.emplace_back();
+    } else {
+      fields.back() += c;
+    }
+  }
+  return fields;
+}
+
+double csvNumber(const std::string& v) {
+  if (v.empty()) return std::nan("");
+  try {
+    return std::stod(v);
+  } catch (const std::exception&) {
+    return std::nan("");
+  }
+}
+
+constexpr const char* kCsvHeader =
+    "group,scene,what,method,budget,status,wall_s,psnr_mid,ssim_mid,brisque_mid,psnr_mean,rotation_error_deg,"
+    "rotation_truth_deg,iterations,nonfinite";
+
+std::string csvNumberField(double v) {
+  if (!std::isfinite(v)) return "";
+  std::ostringstream s;
+  s.precision(8);
+  s << v;
+  return s.str();
+}
+
+std::string runName(const BenchRow& r) { return r.budget == "-" ? r.method : r.method + " " + r.budget; }
+
+// Rows of the group the summary and the plot speak for: "standard" when present, else all.
+std::vector<BenchRow> summaryRows(const std::vector<BenchRow>& rows, std::string* group) {
+  std::vector<BenchRow> standard;
+  for (const BenchRow& r : rows) {
+    if (r.group == "standard") standard.push_back(r);
+  }
+  if (group) *group = standard.empty() ? "every scene" : "the standard scenes";
+  return standard.empty() ? rows : standard;
+}
+
+struct Summary {
+  std::string method, budget;
+  double psnr = 0, ssim = 0, brisque = 0, rotation = 0, wall = 0;
+  int n = 0, n_rotation = 0, n_brisque = 0, failed = 0;
+  int64_t nonfinite = 0;
+  double first_seen = 0;  // order of appearance
+};
+
+// Mean per (method, budget) over the rows that succeeded, in the order the runs appear.
+std::vector<Summary> summarise(const std::vector<BenchRow>& rows) {
+  std::map<std::pair<std::string, std::string>, Summary> by;
+  int order = 0;
+  for (const BenchRow& r : rows) {
+    auto [it, fresh] = by.try_emplace({r.method, r.budget});
+    Summary& s = it->second;
+    if (fresh) {
+      s.method = r.method;
+      s.budget = r.budget;
+      s.first_seen = order++;
+    }
+    s.nonfinite += r.nonfinite;
+    if (!r.ok()) {
+      ++s.failed;
+      continue;
+    }
+    ++s.n;
+    s.psnr += r.psnr;
+    s.ssim += r.ssim;
+    s.wall += r.wall_s;
+    if (std::isfinite(r.brisque)) s.brisque += r.brisque, ++s.n_brisque;
+    if (std::isfinite(r.rotation_error_deg)) s.rotation += r.rotation_error_deg, ++s.n_rotation;
+  }
+  std::vector<Summary> out;
+  for (auto& [key, s] : by) {
+    if (s.n > 0) {
+      s.psnr /= s.n;
+      s.ssim /= s.n;
+      s.wall /= s.n;
+    }
+    s.brisque = s.n_brisque ? s.brisque / s.n_brisque : std::nan("");
+    s.rotation = s.n_rotation ? s.rotation / s.n_rotation : std::nan("");
+    out.push_back(s);
+  }
+  std::sort(out.begin(), out.end(), [](const Summary& a, const Summary& b) { return a.first_seen < b.first_seen; });
+  return out;
+}
+
+std::string health(const BenchRow& r) {
+  if (!r.ok()) return r.status;
+  return r.nonfinite ? std::to_string(r.nonfinite) + " non-finite values" : "ok";
+}
+
+}  // namespace
+
+std::vector<BenchRun> benchRuns(const std::vector<std::string>& methods, const std::vector<std::string>& budgets,
+                                const std::vector<std::string>& mlp_budgets,
+                                const std::map<std::string, MethodSettings>& extra) {
+  std::vector<BenchRun> runs;
+  const auto with_extra = [&](const std::string& method, MethodSettings s) {
+    if (const auto it = extra.find(method); it != extra.end()) {
+      for (const auto& [k, v] : it->second) s[k] = v;
+    }
+    return s;
+  };
+  for (const std::string& m : methods) {
+    if (m == "blurry" || m == "edi") {
+      runs.push_back({m, "-", m, with_extra(m, {})});
+    } else if (m == "benerf" || m == "benerf-mlp") {
+      const std::vector<std::string>& list = m == "benerf" ? budgets : mlp_budgets;
+      if (list.empty()) throw UsageError("no budgets for " + m);
+      for (const std::string& token : list) {
+        auto [label, settings] = parseBudget(token);
+        if (m == "benerf-mlp") settings["field"] = "mlp";
+        runs.push_back({m, label, "benerf", with_extra(m, settings)});
+      }
+    } else {
+      throw UsageError("--methods: unknown method '" + m + "' (known: blurry, edi, benerf, benerf-mlp)");
+    }
+  }
+  for (const BenchRun& r : runs) {
+    try {
+      makeDeblurrer(r.deblurrer, r.settings);
+    } catch (const Error& e) {
+      throw UsageError(e.what());
+    }
+  }
+  return runs;
+}
+
+double exposureRotationDeg(const std::vector<StampedPose>& poses) {
+  if (poses.size() < 2) return std::nan("");
+  return logSO3(Quaternion(poses.front().pose.rotation().conjugate() * poses.back().pose.rotation())).norm() * 180.0 / M_PI;
+}
+
+double exposureRotationErrorDeg(const std::vector<StampedPose>& a, const std::vector<StampedPose>& b) {
+  if (a.size() < 2 || b.size() < 2) return std::nan("");
+  const Quaternion qa = a.front().pose.rotation().conjugate() * a.back().pose.rotation();
+  const Quaternion qb = b.front().pose.rotation().conjugate() * b.back().pose.rotation();
+  return logSO3(Quaternion(qa.conjugate() * qb)).norm() * 180.0 / M_PI;
+}
+
+BenchRow runBench(const Observation& obs, const std::string& group, const std::string& scene, const std::string& what,
+                  const BenchRun& run, const std::string& out_dir, MethodReport* report) {
+  BenchRow row;
+  row.group = group;
+  row.scene = scene;
+  row.what = what;
+  row.method = run.method;
+  row.budget = run.budget;
+  row.rotation_truth_deg = exposureRotationDeg(obs.gt_poses);
+  try {
+    MethodReport r = runMethod(obs, run.deblurrer, run.settings, completeRequest(obs, {}), out_dir);
+    row.wall_s = r.wall_s;
+    row.psnr = r.psnr_mid;
+    row.ssim = r.ssim_mid;
+    row.brisque = r.brisque_mid;
+    row.psnr_mean = r.psnr_mean;
+    for (const Frame& f : r.result.frames) {
+      cv::Mat values;
+      f.image.convertTo(values, CV_32F);
+      values = values.reshape(1, 1);
+      for (int i = 0; i < values.cols; ++i) row.nonfinite += !std::isfinite(values.at<float>(0, i));
+    }
+    if (r.result.trajectory) row.rotation_error_deg = exposureRotationErrorDeg(*r.result.trajectory, obs.gt_poses);
+    if (const auto it = r.result.parameters.find("iterations"); it != r.result.parameters.end()) row.iterations = it->second;
+    if (report) *report = std::move(r);
+  } catch (const Error& e) {
+    row.status = std::string("failed: ") + e.what();
+  }
+  return row;
+}
+
+std::vector<BenchRow> readBenchCsv(const std::string& path) {
+  std::vector<BenchRow> rows;
+  std::ifstream in(path);
+  if (!in) return rows;
+  std::string line;
+  if (!std::getline(in, line) || line != kCsvHeader) return rows;  // another layout: start afresh
+  while (std::getline(in, line)) {
+    const std::vector<std::string> f = csvSplit(line);
+    if (f.size() != 15) continue;
+    BenchRow r;
+    r.group = f[0], r.scene = f[1], r.what = f[2], r.method = f[3], r.budget = f[4], r.status = f[5];
+    r.wall_s = csvNumber(f[6]), r.psnr = csvNumber(f[7]), r.ssim = csvNumber(f[8]), r.brisque = csvNumber(f[9]);
+    r.psnr_mean = csvNumber(f[10]), r.rotation_error_deg = csvNumber(f[11]), r.rotation_truth_deg = csvNumber(f[12]);
+    r.iterations = csvNumber(f[13]);
+    r.nonfinite = static_cast<int64_t>(csvNumber(f[14]));
+    rows.push_back(r);
+  }
+  return rows;
+}
+
+void writeBenchResults(const std::string& dir, const std::vector<BenchRow>& rows, const std::string& title) {
+  fs::create_directories(dir);
+  std::ostringstream csv;
+  csv << kCsvHeader << "\n";
+  for (const BenchRow& r : rows) {
+    csv << csvField(r.group) << ',' << csvField(r.scene) << ',' << csvField(r.what) << ',' << csvField(r.method) << ','
+        << csvField(r.budget) << ',' << csvField(r.status) << ',' << csvNumberField(r.wall_s) << ',' << csvNumberField(r.psnr) << ','
+        << csvNumberField(r.ssim) << ',' << csvNumberField(r.brisque) << ',' << csvNumberField(r.psnr_mean) << ','
+        << csvNumberField(r.rotation_error_deg) << ',' << csvNumberField(r.rotation_truth_deg) << ',' << csvNumberField(r.iterations)
+        << ',' << r.nonfinite << "\n";
+  }
+  writeFileAtomically(dir + "/results.csv", csv.str());
+
+  std::string group;
+  const std::vector<BenchRow> summary_rows = summaryRows(rows, &group);
+  std::ostringstream md;
+  md << "# " << title << "\n\n## Speed against error (mean over " << group << ")\n\n"
+     << "PSNR, SSIM and BRISQUE of the mid-exposure frame; rotation error: the angle between the estimated and the true "
+        "rotation over the exposure. Means over the scenes a run finished.\n\n"
+     << "| method | budget | PSNR (dB) | SSIM | BRISQUE | rotation error (°) | wall time (s) | scenes | failed | non-finite |\n"
+     << "|---|---|---|---|---|---|---|---|---|---|\n";
+  for (const Summary& s : summarise(summary_rows)) {
+    md << "| " << s.method << " | " << s.budget << " | " << fixed(s.n ? s.psnr : NAN, 2) << " | " << fixed(s.n ? s.ssim : NAN, 4)
+       << " | " << fixed(s.brisque, 1) << " | " << fixed(s.rotation, 2) << " | " << fixed(s.n ? s.wall : NAN, s.wall < 1 ? 3 : 1)
+       << " | " << s.n << " | " << s.failed << " | " << s.nonfinite << " |\n";
+  }
+  // Hard cases: one line per case, PSNR per run, and the numerical health.
+  std::vector<std::string> hard_cases, run_names;
+  std::map<std::string, std::map<std::string, const BenchRow*>> hard;
+  for (const BenchRow& r : rows) {
+    if (r.group != "hard") continue;
+    if (!hard.count(r.scene)) hard_cases.push_back(r.scene);
+    if (std::find(run_names.begin(), run_names.end(), runName(r)) == run_names.end()) run_names.push_back(runName(r));
+    hard[r.scene][runName(r)] = &r;
+  }
+  if (!hard_cases.empty()) {
+    md << "\n## Hard cases (PSNR of the mid frame, dB; health: failures and non-finite output values)\n\n| case | what |";
+    for (const std::string& n : run_names) md << ' ' << n << " |";
+    md << " health |\n|---|---|";
+    for (size_t i = 0; i < run_names.size(); ++i) md << "---|";
+    md << "---|\n";
+    for (const std::string& c : hard_cases) {
+      const auto& runs = hard[c];
+      md << "| " << c << " | " << runs.begin()->second->what << " |";
+      std::string problems;
+      for (const std::string& n : run_names) {
+        const auto it = runs.find(n);
+        md << ' ' << (it == runs.end() ? "" : it->second->ok() ? fixed(it->second->psnr, 2) : "failed") << " |";
+        if (it != runs.end() && health(*it->second) != "ok") problems += (problems.empty() ? "" : "; ") + n + ": " + health(*it->second);
+      }
+      md << ' ' << (problems.empty() ? "ok" : problems) << " |\n";
+    }
+  }
+  md << "\n## Every run\n\n| group | scene | method | budget | PSNR (dB) | SSIM | BRISQUE | rotation error (°) | true rotation (°) | "
+        "iterations | wall time (s) | health |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+  for (const BenchRow& r : rows) {
+    md << "| " << r.group << " | " << r.scene << " | " << r.method << " | " << r.budget << " | " << fixed(r.psnr, 2) << " | "
+       << fixed(r.ssim, 4) << " | " << fixed(r.brisque, 1) << " | " << fixed(r.rotation_error_deg, 2) << " | "
+       << fixed(r.rotation_truth_deg, 2) << " | " << fixed(r.iterations, 0) << " | " << fixed(r.wall_s, r.wall_s < 1 ? 3 : 1) << " | "
+       << health(r) << " |\n";
+  }
+  writeFileAtomically(dir + "/results.md", md.str());
+  drawSpeedError(rows, title, dir + "/speed_vs_error.png");
+}
+
+void drawSpeedError(const std::vector<BenchRow>& all_rows, const std::string& title, const std::string& png_path) {
+  std::string group;
+  const std::vector<BenchRow> rows = summaryRows(all_rows, &group);
+  std::vector<Summary> points;
+  for (const Summary& s : summarise(rows)) {
+    if (s.n > 0 && std::isfinite(s.psnr) && std::isfinite(s.wall)) points.push_back(s);
+  }
+  constexpr int kWidth = 960, kHeight = 600, kLeft = 80, kRight = 210, kTop = 56, kBottom = 64;
+  cv::Mat img(kHeight, kWidth, CV_8UC3, cv::Scalar(255, 255, 255));
+  const cv::Scalar ink(40, 40, 40), grid(225, 225, 225);
+  const auto font = cv::FONT_HERSHEY_SIMPLEX;
+  const auto text = [&](const std::string& s, cv::Point p, double scale, const cv::Scalar& colour, int thickness = 1) {
+    cv::putText(img, s, p, font, scale, colour, thickness, cv::LINE_AA);
+  };
+  const auto width_of = [&](const std::string& s, double scale) { return cv::getTextSize(s, font, scale, 1, nullptr).width; };
+
+  // Axes: x = log10(wall time) over whole decades, y = PSNR over whole dB with a margin.
+  const double floor_s = 1e-4;  // the blurry "method" takes microseconds
+  double x0 = -1, x1 = 1, y0 = 10, y1 = 40;
+  if (!points.empty()) {
+    x0 = 1e9, x1 = -1e9, y0 = 1e9, y1 = -1e9;
+    for (const Summary& s : points) {
+      const double lx = std::log10(std::max(s.wall, floor_s));
+      x0 = std::min(x0, lx), x1 = std::max(x1, lx), y0 = std::min(y0, s.psnr), y1 = std::max(y1, s.psnr);
+    }
+    x0 = std::floor(x0), x1 = std::max(std::ceil(x1), x0 + 1);
+    y0 = std::floor(y0 - 1), y1 = std::ceil(y1 + 1);
+  }
+  const int pw = kWidth - kLeft - kRight, ph = kHeight - kTop - kBottom;
+  const auto px = [&](double wall) {
+    return kLeft + static_cast<int>(std::lround((std::log10(std::max(wall, floor_s)) - x0) / (x1 - x0) * pw));
+  };
+  const auto py = [&](double psnr) { return kTop + static_cast<int>(std::lround((y1 - psnr) / (y1 - y0) * ph)); };
+  for (int d = static_cast<int>(x0); d <= static_cast<int>(x1); ++d) {
+    const int x = px(std::pow(10.0, d));
+    cv::line(img, {x, kTop}, {x, kTop + ph}, grid);
+    std::string label = d <= -3 ? fixed(std::pow(10.0, d + 3), d + 3 < 0 ? -(d + 3) : 0) + " ms"
+                                : fixed(std::pow(10.0, d), d < 0 ? -d : 0) + " s";
+    text(label, {x - width_of(label, 0.45) / 2, kTop + ph + 20}, 0.45, ink);
+  }
+  const double y_step = (y1 - y0) > 24 ? 5 : (y1 - y0) > 10 ? 2 : 1;
+  for (double v = std::ceil(y0 / y_step) * y_step; v <= y1; v += y_step) {
+    const int y = py(v);
+    cv::line(img, {kLeft, y}, {kLeft + pw, y}, grid);
+    const std::string label = fixed(v, 0);
+    text(label, {kLeft - 8 - width_of(label, 0.45), y + 5}, 0.45, ink);
+  }
+  cv::rectangle(img, {kLeft, kTop}, {kLeft + pw, kTop + ph}, ink);
+  text("wall time per frame (log scale)", {kLeft + pw / 2 - width_of("wall time per frame (log scale)", 0.5) / 2, kHeight - 18}, 0.5, ink);
+  text("PSNR (dB)", {10, kTop - 12}, 0.5, ink);
+  text(title + " - mean over " + group, {kLeft, 30}, 0.6, ink, 1);
+
+  // One colour per method; points joined in order of wall time, labelled by budget.
+  const std::vector<cv::Scalar> palette = {{120, 120, 120}, {180, 119, 31}, {40, 39, 214}, {44, 160, 44}, {189, 103, 148}, {14, 127, 255}};
+  std::vector<std::string> methods;
+  for (const Summary& s : points) {
+    if (std::find(methods.begin(), methods.end(), s.method) == methods.end()) methods.push_back(s.method);
+  }
+  for (size_t m = 0; m < methods.size(); ++m) {
+    const cv::Scalar colour = palette[m % palette.size()];
+    std::vector<Summary> curve;
+    for (const Summary& s : points) {
+      if (s.method == methods[m]) curve.push_back(s);
+    }
+    std::sort(curve.begin(), curve.end(), [](const Summary& a, const Summary& b) { return a.wall < b.wall; });
+    for (size_t i = 0; i < curve.size(); ++i) {
+      const cv::Point p(px(curve[i].wall), py(curve[i].psnr));
+      if (i > 0) cv::line(img, {px(curve[i - 1].wall), py(curve[i - 1].psnr)}, p, colour, 2, cv::LINE_AA);
+      cv::circle(img, p, 5, colour, cv::FILLED, cv::LINE_AA);
+      if (curve[i].budget != "-") text(curve[i].budget, {p.x + 7, p.y - 7}, 0.42, colour);
+    }
+    const int ly = kTop + 20 + static_cast<int>(m) * 26;
+    cv::line(img, {kLeft + pw + 16, ly - 5}, {kLeft + pw + 44, ly - 5}, colour, 2, cv::LINE_AA);
+    cv::circle(img, {kLeft + pw + 30, ly - 5}, 5, colour, cv::FILLED, cv::LINE_AA);
+    text(methods[m], {kLeft + pw + 52, ly}, 0.5, ink);
+  }
+  if (points.empty()) text("no finished runs", {kLeft + 20, kTop + 40}, 0.6, ink);
+
+  AtomicPath out(png_path);
+  const std::string tmp = out.temporaryPath() + ".png";
+  if (!cv::imwrite(tmp, img)) throwInFile(png_path, "cannot write image");
+  fs::rename(tmp, out.temporaryPath());
+  out.commit();
+}
+
+}  // namespace evkit::cli
