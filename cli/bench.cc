@@ -412,11 +412,7 @@ void drawSpeedError(const std::vector<BenchRow>& all_rows, const std::string& ti
   }
   if (points.empty()) text("no finished runs", {kLeft + 20, kTop + 40}, 0.6, ink);
 
-  AtomicPath out(png_path);
-  const std::string tmp = out.temporaryPath() + ".png";
-  if (!cv::imwrite(tmp, img)) throwInFile(png_path, "cannot write image");
-  fs::rename(tmp, out.temporaryPath());
-  out.commit();
+  writeImageAtomically(png_path, img);
 }
 
 }  // namespace evkit::cli

@@ -77,16 +77,6 @@ std::string fmt(double v, const char* format) {
   return buf;
 }
 
-cv::Mat labelled(const cv::Mat& linear, const std::string& label, int channels) {
-  cv::Mat img = quantize(linear, 8);
-  if (img.channels() == 1 && channels == 3) cv::cvtColor(img, img, cv::COLOR_GRAY2BGR);
-  if (img.channels() == 1) cv::cvtColor(img, img, cv::COLOR_GRAY2BGR);
-  cv::Mat out(img.rows + 22, img.cols, CV_8UC3, cv::Scalar(255, 255, 255));
-  img.copyTo(out(cv::Rect(0, 22, img.cols, img.rows)));
-  cv::putText(out, label, cv::Point(4, 16), cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
-  return out;
-}
-
 }  // namespace
 
 int runDeblur(const Args& args) {
@@ -166,16 +156,7 @@ int runCompare(const Args& args) {
     std::fflush(stdout);
   }
   if (!out.empty() && !reports.empty()) {
-    std::vector<cv::Mat> tiles;
-    const int channels = obs.blurry.image.channels();
-    const int64_t mid = obs.blurry.exposure_start_us + (obs.blurry.exposure_end_us - obs.blurry.exposure_start_us) / 2;
-    for (const MethodReport& r : reports) tiles.push_back(labelled(r.mid, r.method + (std::isfinite(r.psnr_mid) ? " " + fmt(r.psnr_mid, "%.2f") + " dB" : ""), channels));
-    for (const Frame& g : obs.gt_frames) {
-      if (g.exposure_start_us == mid) tiles.push_back(labelled(g.image, "ground truth", channels));
-    }
-    cv::Mat side;
-    cv::hconcat(tiles, side);
-    if (!cv::imwrite(out + "/side_by_side.png", side)) throwInFile(out + "/side_by_side.png", "cannot write image");
+    writeSideBySide(out + "/side_by_side.png", obs, reports);
     std::cerr << "wrote " << out << "/side_by_side.png\n";
   }
   return reports.size() == methods.size() ? kExitOk : kExitInputError;

@@ -9,6 +9,7 @@
 #include <optional>
 #include <sstream>
 
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
 
@@ -58,7 +59,46 @@ cv::Mat srgb8(const cv::Mat& linear) {
   return quantize(out, 8);
 }
 
+cv::Mat labelled(const cv::Mat& linear, const std::string& label) {
+  cv::Mat img = quantize(linear, 8);
+  if (img.channels() == 1) cv::cvtColor(img, img, cv::COLOR_GRAY2BGR);
+  cv::Mat out(img.rows + 22, img.cols, CV_8UC3, cv::Scalar(255, 255, 255));
+  img.copyTo(out(cv::Rect(0, 22, img.cols, img.rows)));
+  cv::putText(out, label, cv::Point(4, 16), cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0), 1, cv::LINE_AA);
+  return out;
+}
+
 }  // namespace
+
+void writeSideBySide(const std::string& path, const Observation& obs, const std::vector<MethodReport>& reports) {
+  std::vector<cv::Mat> tiles;
+  for (const MethodReport& r : reports) {
+    std::string label = r.method;
+    if (std::isfinite(r.psnr_mid)) {
+      char db[32];
+      std::snprintf(db, sizeof(db), " %.2f dB", r.psnr_mid);
+      label += db;
+    }
+    if (!r.mid.empty()) tiles.push_back(labelled(r.mid, label));
+  }
+  const int64_t mid = obs.blurry.exposure_start_us + (obs.blurry.exposure_end_us - obs.blurry.exposure_start_us) / 2;
+  for (const Frame& g : obs.gt_frames) {
+    if (g.exposure_start_us == mid) tiles.push_back(labelled(g.image, "ground truth"));
+  }
+  if (tiles.empty()) return;
+  cv::Mat side;
+  cv::hconcat(tiles, side);
+  writeImageAtomically(path, side);
+}
+
+void writeImageAtomically(const std::string& path, const cv::Mat& image) {
+  AtomicPath out(path);
+  // OpenCV picks the codec from the name: the temporary keeps the extension at its end.
+  const std::string tmp = out.temporaryPath() + fs::path(path).extension().string();
+  if (!cv::imwrite(tmp, image)) throwInFile(path, "cannot write image");
+  fs::rename(tmp, out.temporaryPath());
+  out.commit();
+}
 
 std::string frameName(int64_t t_us) { return std::to_string(t_us) + ".png"; }
 

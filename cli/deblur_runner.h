@@ -30,4 +30,11 @@ MethodReport runMethod(const Observation& obs, const std::string& method, const 
 
 std::string frameName(int64_t t_us);
 
+// One image: each report's mid frame labelled with its method (and PSNR), then the ground truth at
+// mid-exposure when there is one; 8-bit, linear values as the frames hold them.
+// An 8-bit image (as cv::imwrite takes it) that appears complete or not at all.
+void writeImageAtomically(const std::string& path, const cv::Mat& image);
+
+void writeSideBySide(const std::string& path, const Observation& obs, const std::vector<MethodReport>& reports);
+
 }  // namespace evkit::cli

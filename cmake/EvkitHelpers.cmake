@@ -35,6 +35,9 @@ function(evkit_add_library name)
     $<INSTALL_INTERFACE:include>)
   target_link_libraries(${name} PUBLIC ${ARG_DEPS} PRIVATE ${ARG_PRIVATE_DEPS})
   evkit_target_defaults(${name})
+  # `cmake --install` puts the library and its headers where find_package(evkit) finds them.
+  install(TARGETS ${name} EXPORT evkitTargets ARCHIVE DESTINATION lib LIBRARY DESTINATION lib)
+  install(DIRECTORY include/ DESTINATION include)
 endfunction()
 
 # evkit_add_test(NAME SOURCES a_test.cc DEPS lib1 lib2)

@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <fstream>
+#include <map>
+#include <sstream>
 
 #include <opencv2/imgcodecs.hpp>
 
@@ -341,9 +343,36 @@ TEST(Cli, BenchKeepsFinishedRunsWhenALaterOneFailsAndResumes) {
   EXPECT_FALSE(test::fs::exists(dir / "x"));
 }
 
-TEST(Cli, DemoRunsTheDefaultJob) {
+TEST(Cli, DemoDeblursTheDefaultSceneWithEveryMethod) {
   ScratchDir dir;
-  const RunResult r = runEvkit("demo --events 30000 --out " + (dir / "demo"), dir);
+  const RunResult r = runEvkit("demo --size 64x48 --blur-px 6 --budget 3 --threads 1 --out " + (dir / "demo"), dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (const char* line : {"blurry ", "edi ", "benerf "}) EXPECT_NE(r.out.find(line), std::string::npos) << r.out;
+  for (const char* f : {"observation/blurry.png", "observation/events.h5", "side_by_side.png", "speed_vs_error.png", "results.csv",
+                        "results.md", "edi/latent.avi", "benerf/trajectory.txt", "benerf/disparity.png", "benerf/summary.json"}) {
+    EXPECT_TRUE(test::fs::exists(dir / (std::string("demo/") + f))) << f;
+  }
+  // The side-by-side image: blurry, edi, benerf and the ground truth, each 64 wide.
+  EXPECT_EQ(cv::imread(dir / "demo/side_by_side.png").cols, 4 * 64);
+  const std::string csv = test::readText(dir / "demo/results.csv");
+  EXPECT_EQ(lineCount(csv), 4) << csv;
+  EXPECT_EQ(csv.find("failed"), std::string::npos) << csv;
+  // EDI sharpens the blurry frame of the default scene even with the sensor's noise.
+  std::map<std::string, double> psnr;
+  std::istringstream lines(csv);
+  for (std::string line; std::getline(lines, line);) {
+    std::vector<std::string> f;
+    std::istringstream fields(line);
+    for (std::string v; std::getline(fields, v, ',');) f.push_back(v);
+    if (f.size() > 7 && f[0] == "demo") psnr[f[3]] = std::stod(f[7]);
+  }
+  ASSERT_EQ(psnr.size(), 3u) << csv;
+  EXPECT_GT(psnr["edi"], psnr["blurry"] + 3) << csv;
+}
+
+TEST(Cli, DemoFormatsTourRoundTripsARecording) {
+  ScratchDir dir;
+  const RunResult r = runEvkit("demo --formats --events 30000 --out " + (dir / "demo"), dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("round trip exact"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("events:      30,000"), std::string::npos) << r.out;
