@@ -28,7 +28,7 @@ for r in "${readers[@]}"; do mkdir -p "$seeds/$r"; done
 
 # Seeds written by evkit itself.
 evkit=build-fuzz/cli/evkit
-ASAN_OPTIONS=detect_leaks=0 "$evkit" demo --events 300 --out "$work/demo" >/dev/null
+ASAN_OPTIONS=detect_leaks=0 "$evkit" demo --formats --events 300 --out "$work/demo" >/dev/null
 cp "$work/demo/random.txt" "$seeds/text/" 2>/dev/null || true
 [ -d "$seeds/hdf5" ] && ASAN_OPTIONS=detect_leaks=0 "$evkit" convert "$work/demo/random.txt" "$seeds/hdf5/a.h5" --compression deflate 2>/dev/null
 [ -d "$seeds/aedat4" ] && ASAN_OPTIONS=detect_leaks=0 "$evkit" convert "$work/demo/random.txt" "$seeds/aedat4/a.aedat4" 2>/dev/null

@@ -216,8 +216,10 @@ SimulatorStats simulateAdaptive(RenderSource& source, int64_t t_begin_us, int64_
     // Next step from the observed rate, at most doubling.
     const double rate = max_change / static_cast<double>(t_next - t);
     t = t_next;
-    const int64_t ideal = rate > 0 ? static_cast<int64_t>(limit / rate) : adaptive.max_step_us;
-    step = std::clamp<int64_t>(std::min(ideal, 2 * step), adaptive.min_step_us, adaptive.max_step_us);
+    // In double until clamped: limit / rate overflows int64 when the scene barely changes.
+    const double ideal = rate > 0 ? limit / rate : static_cast<double>(adaptive.max_step_us);
+    step = static_cast<int64_t>(std::clamp(std::min(ideal, 2.0 * static_cast<double>(step)), static_cast<double>(adaptive.min_step_us),
+                                           static_cast<double>(adaptive.max_step_us)));
   }
   return sim.stats();
 }
