@@ -67,13 +67,16 @@ nerf::HashFieldConfig adaptedHash(nerf::HashFieldConfig c, int finest) {
 // The samples of one ray in the field's precision: NDC positions into columns [col, col + S) of
 // `positions`, interval lengths (t_{j+1} - t_j) |d| (t_S = 1), stratified t from the jitter.
 template <typename T>
-void sampleRayInto(const nerf::NdcRay& ray, int S, const float* jitter, Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>& positions,
-                   Eigen::Index col, T* t, T* delta) {
+void sampleRayInto(const nerf::NdcRay& ray, int S, const float* jitter, double depth_scale,
+                   Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>& positions, Eigen::Index col, T* t, T* delta) {
   const double length = ray.direction.norm();
   for (int j = 0; j < S; ++j) t[j] = (static_cast<T>(j) + static_cast<T>(jitter[j])) / static_cast<T>(S);
   for (int j = 0; j < S; ++j) {
     delta[j] = ((j + 1 < S ? t[j + 1] : T(1)) - t[j]) * static_cast<T>(length);
-    positions.col(col + j) = (ray.origin + static_cast<double>(t[j]) * ray.direction).template cast<T>();
+    const double tj = static_cast<double>(t[j]);
+    positions(0, col + j) = static_cast<T>(ray.origin.x() + tj * ray.direction.x());
+    positions(1, col + j) = static_cast<T>(ray.origin.y() + tj * ray.direction.y());
+    positions(2, col + j) = static_cast<T>(depth_scale * (ray.origin.z() + tj * ray.direction.z()));
   }
 }
 
@@ -256,7 +259,7 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
     const nerf::NdcRay ray = nerf::toNdc(nerf::worldRay(camera_, poses[static_cast<size_t>(rayPose(r))], p % W, p / W), camera_, options_.near);
     directions[static_cast<size_t>(r)] = ray.direction;
     const size_t o = static_cast<size_t>(r) * S;
-    sampleRayInto<T>(ray, S, &batch.jitter[o], positions, static_cast<Eigen::Index>(o), &ts[o], &delta[o]);
+    sampleRayInto<T>(ray, S, &batch.jitter[o], options_.depth_scale, positions, static_cast<Eigen::Index>(o), &ts[o], &delta[o]);
   }
   if (knot_gradient) field_->zeroGradients();
   const Matrix out = field_->forward(positions);
@@ -374,7 +377,8 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
   for (int r = 0; r < R; ++r) {
     Eigen::Vector3d g0 = Eigen::Vector3d::Zero(), g1 = Eigen::Vector3d::Zero();
     for (int j = 0; j < S; ++j) {
-      const Eigen::Vector3d g = d_positions.col(static_cast<Eigen::Index>(r) * S + j).template cast<double>();
+      Eigen::Vector3d g = d_positions.col(static_cast<Eigen::Index>(r) * S + j).template cast<double>();
+      g.z() *= options_.depth_scale;  // the field saw depth_scale * z
       const double t = static_cast<double>(ts[static_cast<size_t>(r) * S + static_cast<size_t>(j)]);
       g0 += (1 - t) * g;
       g1 += t * g;
@@ -418,7 +422,7 @@ cv::Mat BenerfProblem<T>::render(int64_t t_us, cv::Mat* disparity) {
     for (int r = 0; r < R; ++r) {
       const nerf::NdcRay ray = nerf::toNdc(nerf::worldRay(camera_, pose, r % W, y0 + r / W), camera_, options_.near);
       const size_t o = static_cast<size_t>(r) * S;
-      sampleRayInto<T>(ray, S, centres.data(), positions, static_cast<Eigen::Index>(o), &ts[o], &delta[o]);
+      sampleRayInto<T>(ray, S, centres.data(), options_.depth_scale, positions, static_cast<Eigen::Index>(o), &ts[o], &delta[o]);
     }
     const Matrix out = field_->forward(positions);
 #pragma omp parallel for schedule(static)
@@ -725,6 +729,9 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
     } else if (key == "table") {
       o.hash.grid.log2_table = settingInt(key, value, 8);
       if (o.hash.grid.log2_table > 24) throw Error("benerf: table (log2 entries) must be at most 24");
+    } else if (key == "depth_scale") {
+      o.depth_scale = number(key, value);
+      if (!(o.depth_scale > 0 && o.depth_scale <= 1)) throw Error("benerf: depth_scale must lie in (0, 1]");
     } else if (key == "resolution") {
       o.finest_resolution = settingInt(key, value, 2);
     } else if (key == "field_lr") {
@@ -746,7 +753,7 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
     } else {
       throw Error("benerf: unknown setting '" + key +
                   "' (known: budget, preset, field, iterations, views, knots, trajectory, alpha, beta, normalise, rays, samples, levels, "
-                  "table, resolution, field_lr, knot_lr, seed, threads, checkpoint, resume, stop_after, lin_log)");
+                  "table, resolution, depth_scale, field_lr, knot_lr, seed, threads, checkpoint, resume, stop_after, lin_log)");
     }
   }
   if (o.field == "mlp" && !settings.count("field_lr")) o.field_lr = 5e-4;  // the paper's rate for its MLP
