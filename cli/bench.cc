@@ -22,13 +22,6 @@ namespace fs = std::filesystem;
 
 namespace {
 
-std::string fixed(double v, int decimals) {
-  if (!std::isfinite(v)) return "-";
-  char buf[48];
-  std::snprintf(buf, sizeof(buf), "%.*f", decimals, v);
-  return buf;
-}
-
 // A budget token -> its label and the BeNeRF settings it stands for.
 std::pair<std::string, MethodSettings> parseBudget(const std::string& token) {
   if (token == "fast" || token == "balanced" || token == "quality") return {token, {{"budget", token}}};
@@ -44,7 +37,7 @@ std::pair<std::string, MethodSettings> parseBudget(const std::string& token) {
     if (unit.empty() && value == std::floor(value) && value <= 1e7) {
       return {token + " it", {{"budget", "fast"}, {"iterations", token}}};
     }
-    if (unit == "s") return {fixed(value, value == std::floor(value) ? 0 : 1) + " s", {{"budget", token.substr(0, used)}}};
+    if (unit == "s") return {fixedOrDash(value, value == std::floor(value) ? 0 : 1) + " s", {{"budget", token.substr(0, used)}}};
   }
   throw UsageError("--budgets: '" + token + "' is not an iteration count, fast|balanced|quality or seconds (e.g. 60s)");
 }
@@ -291,8 +284,8 @@ void writeBenchResults(const std::string& dir, const std::vector<BenchRow>& rows
      << "| method | budget | PSNR (dB) | SSIM | BRISQUE | rotation error (°) | wall time (s) | scenes | failed | non-finite |\n"
      << "|---|---|---|---|---|---|---|---|---|---|\n";
   for (const Summary& s : summarise(summary_rows)) {
-    md << "| " << s.method << " | " << s.budget << " | " << fixed(s.n ? s.psnr : NAN, 2) << " | " << fixed(s.n ? s.ssim : NAN, 4)
-       << " | " << fixed(s.brisque, 1) << " | " << fixed(s.rotation, 2) << " | " << fixed(s.n ? s.wall : NAN, s.wall < 1 ? 3 : 1)
+    md << "| " << s.method << " | " << s.budget << " | " << fixedOrDash(s.n ? s.psnr : NAN, 2) << " | " << fixedOrDash(s.n ? s.ssim : NAN, 4)
+       << " | " << fixedOrDash(s.brisque, 1) << " | " << fixedOrDash(s.rotation, 2) << " | " << fixedOrDash(s.n ? s.wall : NAN, s.wall < 1 ? 3 : 1)
        << " | " << s.n << " | " << s.failed << " | " << s.nonfinite << " |\n";
   }
   // Hard cases: one line per case, PSNR per run, and the numerical health.
@@ -316,7 +309,7 @@ void writeBenchResults(const std::string& dir, const std::vector<BenchRow>& rows
       std::string problems;
       for (const std::string& n : run_names) {
         const auto it = runs.find(n);
-        md << ' ' << (it == runs.end() ? "" : it->second->ok() ? fixed(it->second->psnr, 2) : "failed") << " |";
+        md << ' ' << (it == runs.end() ? "" : it->second->ok() ? fixedOrDash(it->second->psnr, 2) : "failed") << " |";
         if (it != runs.end() && health(*it->second) != "ok") problems += (problems.empty() ? "" : "; ") + n + ": " + health(*it->second);
       }
       md << ' ' << (problems.empty() ? "ok" : problems) << " |\n";
@@ -325,9 +318,9 @@ void writeBenchResults(const std::string& dir, const std::vector<BenchRow>& rows
   md << "\n## Every run\n\n| group | scene | method | budget | PSNR (dB) | SSIM | BRISQUE | rotation error (°) | true rotation (°) | "
         "iterations | wall time (s) | health |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const BenchRow& r : rows) {
-    md << "| " << r.group << " | " << r.scene << " | " << r.method << " | " << r.budget << " | " << fixed(r.psnr, 2) << " | "
-       << fixed(r.ssim, 4) << " | " << fixed(r.brisque, 1) << " | " << fixed(r.rotation_error_deg, 2) << " | "
-       << fixed(r.rotation_truth_deg, 2) << " | " << fixed(r.iterations, 0) << " | " << fixed(r.wall_s, r.wall_s < 1 ? 3 : 1) << " | "
+    md << "| " << r.group << " | " << r.scene << " | " << r.method << " | " << r.budget << " | " << fixedOrDash(r.psnr, 2) << " | "
+       << fixedOrDash(r.ssim, 4) << " | " << fixedOrDash(r.brisque, 1) << " | " << fixedOrDash(r.rotation_error_deg, 2) << " | "
+       << fixedOrDash(r.rotation_truth_deg, 2) << " | " << fixedOrDash(r.iterations, 0) << " | " << fixedOrDash(r.wall_s, r.wall_s < 1 ? 3 : 1) << " | "
        << health(r) << " |\n";
   }
   writeFileAtomically(dir + "/results.md", md.str());
@@ -370,15 +363,15 @@ void drawSpeedError(const std::vector<BenchRow>& all_rows, const std::string& ti
   for (int d = static_cast<int>(x0); d <= static_cast<int>(x1); ++d) {
     const int x = px(std::pow(10.0, d));
     cv::line(img, {x, kTop}, {x, kTop + ph}, grid);
-    std::string label = d <= -3 ? fixed(std::pow(10.0, d + 3), d + 3 < 0 ? -(d + 3) : 0) + " ms"
-                                : fixed(std::pow(10.0, d), d < 0 ? -d : 0) + " s";
+    std::string label = d <= -3 ? fixedOrDash(std::pow(10.0, d + 3), d + 3 < 0 ? -(d + 3) : 0) + " ms"
+                                : fixedOrDash(std::pow(10.0, d), d < 0 ? -d : 0) + " s";
     text(label, {x - width_of(label, 0.45) / 2, kTop + ph + 20}, 0.45, ink);
   }
   const double y_step = (y1 - y0) > 24 ? 5 : (y1 - y0) > 10 ? 2 : 1;
   for (double v = std::ceil(y0 / y_step) * y_step; v <= y1; v += y_step) {
     const int y = py(v);
     cv::line(img, {kLeft, y}, {kLeft + pw, y}, grid);
-    const std::string label = fixed(v, 0);
+    const std::string label = fixedOrDash(v, 0);
     text(label, {kLeft - 8 - width_of(label, 0.45), y + 5}, 0.45, ink);
   }
   cv::rectangle(img, {kLeft, kTop}, {kLeft + pw, kTop + ph}, ink);

@@ -19,16 +19,6 @@ namespace fs = std::filesystem;
 
 namespace {
 
-std::vector<std::string> splitList(const std::string& list) {
-  std::vector<std::string> out;
-  for (size_t start = 0; start <= list.size();) {
-    const size_t comma = std::min(list.find(',', start), list.size());
-    if (comma > start) out.push_back(list.substr(start, comma - start));
-    start = comma + 1;
-  }
-  return out;
-}
-
 std::string runFolder(const BenchRun& run) {
   std::string name = run.method;
   if (run.budget == "-") return name;
@@ -79,11 +69,7 @@ int runBench(const Args& args) {
   if (!parseArgs(args, "usage: evkit bench [--suite standard|hard|all] [--methods ...] [--budgets ...] --out DIR", opts, pos, vm)) {
     return kExitOk;
   }
-  int width = 0, height = 0;
-  if (std::sscanf(vm["size"].as<std::string>().c_str(), "%dx%d", &width, &height) != 2 || width < 16 || height < 16 || width > 4096 ||
-      height > 4096) {
-    throw UsageError("--size: expected WxH, e.g. 346x260");
-  }
+  const auto [width, height] = parseImageSize(vm["size"].as<std::string>(), "size", 16, 4096);
   std::vector<synth::SuiteEntry> entries;
   try {
     entries = synth::suiteEntries(vm["suite"].as<std::string>());

@@ -118,13 +118,7 @@ int runCompare(const Args& args) {
   pos.add("observation", 1);
   po::variables_map vm;
   if (!parseArgs(args, "usage: evkit compare OBS [--methods blurry,edi] [--out DIR]", opts, pos, vm)) return kExitOk;
-  std::vector<std::string> methods;
-  std::string list = vm["methods"].as<std::string>();
-  for (size_t start = 0; start <= list.size();) {
-    const size_t comma = std::min(list.find(',', start), list.size());
-    if (comma > start) methods.push_back(list.substr(start, comma - start));
-    start = comma + 1;
-  }
+  const std::vector<std::string> methods = splitList(vm["methods"].as<std::string>());
   std::map<std::string, MethodSettings> settings;
   for (const auto& [key, value] : parseSettings(vm)) {
     const size_t dot = key.find('.');

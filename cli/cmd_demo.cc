@@ -5,6 +5,7 @@
 // plot. `--formats` runs the event-file tour instead (random recording -> HDF5 -> text -> info -> PNG).
 
 #include <filesystem>
+#include <tuple>
 #include <iostream>
 
 #include <opencv2/imgcodecs.hpp>
@@ -56,13 +57,6 @@ int formatsTour(const fs::path& dir, size_t count, uint64_t seed) {
   return kExitOk;
 }
 
-std::string cell(double v, int decimals) {
-  if (!std::isfinite(v)) return "-";
-  char buf[32];
-  std::snprintf(buf, sizeof(buf), "%.*f", decimals, v);
-  return buf;
-}
-
 }  // namespace
 
 int runDemo(const Args& args) {
@@ -85,10 +79,7 @@ int runDemo(const Args& args) {
   if (vm["formats"].as<bool>()) return formatsTour(dir, vm["events"].as<size_t>(), seed);
 
   synth::SynthOptions o;
-  if (std::sscanf(vm["size"].as<std::string>().c_str(), "%dx%d", &o.width, &o.height) != 2 || o.width < 16 || o.height < 16 ||
-      o.width > 4096 || o.height > 4096) {
-    throw UsageError("--size: expected WxH, e.g. 346x260");
-  }
+  std::tie(o.width, o.height) = parseImageSize(vm["size"].as<std::string>(), "size", 16, 4096);
   o.shake.blur_px = vm["blur-px"].as<double>();
   if (!(o.shake.blur_px > 0)) throw UsageError("--blur-px must be positive");
   o.shake.seed = o.simulator.seed = seed;
@@ -143,8 +134,8 @@ int runDemo(const Args& args) {
       std::printf("%-8s failed\n", r.method.c_str());
       continue;
     }
-    std::printf("%-8s %10s %8s %9s %14s %11s\n", r.method.c_str(), cell(r.psnr, 2).c_str(), cell(r.ssim, 4).c_str(), cell(r.brisque, 1).c_str(),
-                cell(r.rotation_error_deg, 2).c_str(), cell(r.wall_s, 3).c_str());
+    std::printf("%-8s %10s %8s %9s %14s %11s\n", r.method.c_str(), fixedOrDash(r.psnr, 2).c_str(), fixedOrDash(r.ssim, 4).c_str(), fixedOrDash(r.brisque, 1).c_str(),
+                fixedOrDash(r.rotation_error_deg, 2).c_str(), fixedOrDash(r.wall_s, 3).c_str());
   }
   writeSideBySide((dir / "side_by_side.png").string(), obs, reports);
   writeBenchResults(dir.string(), rows, "evkit demo: " + vm["preset"].as<std::string>() + " at " + vm["size"].as<std::string>());

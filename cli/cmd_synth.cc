@@ -3,6 +3,7 @@
 #include <chrono>
 #include <cstdio>
 #include <iostream>
+#include <tuple>
 
 #include "common.h"
 #include "evkit/events/error.h"
@@ -43,12 +44,7 @@ int runSynth(const Args& args) {
   const int sources = static_cast<int>(vm.count("preset") + vm.count("scene") + vm.count("suite"));
   if (sources != 1) throw UsageError("give exactly one of --preset, --scene, --suite");
   SynthOptions o;
-  int w = 0, h = 0;
-  if (std::sscanf(vm["size"].as<std::string>().c_str(), "%dx%d", &w, &h) != 2 || w < 8 || h < 8 || w > 8192 || h > 8192) {
-    throw UsageError("--size: expected WxH, e.g. 346x260");
-  }
-  o.width = w;
-  o.height = h;
+  std::tie(o.width, o.height) = parseImageSize(vm["size"].as<std::string>(), "size", 8, 8192);
   o.shake.blur_px = vm["blur-px"].as<double>();
   o.exposure_us = vm["exposure-us"].as<int64_t>();
   o.t_begin_us = vm["start-us"].as<int64_t>();

@@ -2,6 +2,8 @@
 
 #include <unistd.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <iostream>
 
@@ -160,6 +162,31 @@ void Progress::finish() {
     std::fflush(stderr);
     drawn_ = false;
   }
+}
+
+std::vector<std::string> splitList(const std::string& list) {
+  std::vector<std::string> out;
+  for (size_t start = 0; start <= list.size();) {
+    const size_t comma = std::min(list.find(',', start), list.size());
+    if (comma > start) out.push_back(list.substr(start, comma - start));
+    start = comma + 1;
+  }
+  return out;
+}
+
+std::pair<int, int> parseImageSize(const std::string& text, const std::string& option, int min_side, int max_side) {
+  int w = 0, h = 0;
+  if (std::sscanf(text.c_str(), "%dx%d", &w, &h) != 2 || w < min_side || h < min_side || w > max_side || h > max_side) {
+    throw UsageError("--" + option + ": expected WxH, e.g. 346x260");
+  }
+  return {w, h};
+}
+
+std::string fixedOrDash(double v, int decimals) {
+  if (!std::isfinite(v)) return "-";
+  char buf[48];
+  std::snprintf(buf, sizeof(buf), "%.*f", decimals, v);
+  return buf;
 }
 
 }  // namespace evkit::cli
