@@ -1,32 +1,31 @@
 #include "evkit/nerf/field.h"
 
+#include <omp.h>
+
+#include <algorithm>
 #include <cmath>
 
 namespace evkit::nerf {
 
 namespace {
 
-// Applies density = softplus(raw_0), colour = sigmoid(raw_c) in place; keeps the raw values.
-template <typename T>
-void activate(Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>& raw_to_out) {
-  for (Eigen::Index k = 0; k < raw_to_out.cols(); ++k) {
-    const T r = raw_to_out(0, k);
-    raw_to_out(0, k) = std::max(r, T(0)) + std::log1p(std::exp(-std::abs(r)));
-    for (Eigen::Index c = 1; c < raw_to_out.rows(); ++c) raw_to_out(c, k) = T(1) / (T(1) + std::exp(-raw_to_out(c, k)));
-  }
+// Applies density = softplus(raw_0), colour = sigmoid(raw_c) in place (vectorised by Eigen).
+template <typename Derived>
+void activate(Eigen::MatrixBase<Derived>&& raw_to_out) {
+  using T = typename Derived::Scalar;
+  const auto r = raw_to_out.row(0).array();
+  raw_to_out.row(0) = (r.max(T(0)) + (-r.abs()).exp().log1p()).matrix();
+  raw_to_out.bottomRows(raw_to_out.rows() - 1) = raw_to_out.bottomRows(raw_to_out.rows() - 1).array().logistic().matrix();
 }
 
 // d raw from d out, given the activated outputs: softplus' = sigmoid(raw) = 1 - exp(-density);
 // sigmoid' = s (1 - s).
-template <typename T>
-Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic> activationBackward(const Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>& out,
-                                                                    const Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>& d_out) {
-  Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic> d_raw(d_out.rows(), d_out.cols());
-  for (Eigen::Index k = 0; k < out.cols(); ++k) {
-    d_raw(0, k) = d_out(0, k) * (T(1) - std::exp(-out(0, k)));
-    for (Eigen::Index c = 1; c < out.rows(); ++c) d_raw(c, k) = d_out(c, k) * out(c, k) * (T(1) - out(c, k));
-  }
-  return d_raw;
+template <typename A, typename B, typename C>
+void activationBackward(const Eigen::MatrixBase<A>& out, const Eigen::MatrixBase<B>& d_out, Eigen::MatrixBase<C>&& d_raw) {
+  using T = typename A::Scalar;
+  const Eigen::Index c = out.rows() - 1;
+  d_raw.row(0) = (d_out.row(0).array() * (T(1) - (-out.row(0).array()).exp())).matrix();
+  d_raw.bottomRows(c) = (d_out.bottomRows(c).array() * out.bottomRows(c).array() * (T(1) - out.bottomRows(c).array())).matrix();
 }
 
 template <typename T>
@@ -56,13 +55,14 @@ class MlpField final : public RadianceField<T> {
     Matrix out(1 + channels_, positions.cols());
     out.row(0) = features.row(0);
     out.bottomRows(channels_) = head_.forward(features.bottomRows(config_.width));
-    activate(out);
+    activate(out.leftCols(out.cols()));
     out_ = out;
     return out;
   }
 
   Matrix backward(const Matrix& d_outputs) override {
-    const Matrix d_raw = activationBackward(out_, d_outputs);
+    Matrix d_raw(d_outputs.rows(), d_outputs.cols());
+    activationBackward(out_, d_outputs, d_raw.leftCols(d_raw.cols()));
     Matrix d_features(1 + config_.width, d_raw.cols());
     d_features.row(0) = d_raw.row(0);
     d_features.bottomRows(config_.width) = head_.backward(d_raw.bottomRows(channels_));
@@ -93,6 +93,10 @@ class MlpField final : public RadianceField<T> {
   Matrix positions_, out_;
 };
 
+// The fast field: hash encoding, then one hidden ReLU layer, in blocks of samples that stay in the
+// cache (the encoding's 32 features and the 64 hidden values of a block are a few tens of KB),
+// threads over blocks. Forward keeps the encoding and the hidden layer for backward (cheaper than
+// recomputing the first layer).
 template <typename T>
 class HashField final : public RadianceField<T> {
  public:
@@ -104,15 +108,77 @@ class HashField final : public RadianceField<T> {
   int channels() const override { return channels_; }
 
   Matrix forward(const Matrix& positions) override {
-    // NDC [-1, 1] -> grid [0, 1].
-    Matrix out = mlp_.forward(grid_.forward((positions.array() + T(1)) * T(0.5)));
-    activate(out);
+    const Eigen::Index n = positions.cols();
+    features_.resize(static_cast<size_t>(grid_.outputSize() * n));
+    grid_.forwardLevelMajor((positions.array() + T(1)) * T(0.5), features_.data());  // NDC [-1, 1] -> [0, 1]
+    const Matrix& w0 = mlp_.weights()[0];
+    const Matrix& w1 = mlp_.weights()[1];
+    const auto& b0 = mlp_.biases()[0];
+    const auto& b1 = mlp_.biases()[1];
+    Matrix out(1 + channels_, n);
+    hidden_.resize(w0.rows(), n);
+#pragma omp parallel
+    {
+      Matrix x;
+#pragma omp for schedule(static)
+      for (Eigen::Index begin = 0; begin < n; begin += kBlock) {
+        const Eigen::Index count = std::min(kBlock, n - begin);
+        gather(begin, count, x);
+        auto hidden = hidden_.middleCols(begin, count);
+        hidden.noalias() = w0 * x;
+        hidden = (hidden.colwise() + b0).cwiseMax(T(0));
+        out.middleCols(begin, count).noalias() = w1 * hidden;
+        out.middleCols(begin, count).colwise() += b1;
+        activate(out.middleCols(begin, count));
+      }
+    }
     out_ = out;
     return out;
   }
+
   Matrix backward(const Matrix& d_outputs) override {
-    return grid_.backward(mlp_.backward(activationBackward(out_, d_outputs))) * T(0.5);
+    const Eigen::Index n = d_outputs.cols();
+    const Matrix& w0 = mlp_.weights()[0];
+    const Matrix& w1 = mlp_.weights()[1];
+    d_features_.resize(features_.size());
+    // Parameter gradients per thread, added in thread order (the same sums for a thread count).
+    const size_t threads = static_cast<size_t>(omp_get_max_threads());
+    std::vector<Matrix> dw0(threads), dw1(threads), db0(threads), db1(threads);
+#pragma omp parallel
+    {
+      const size_t t = static_cast<size_t>(omp_get_thread_num());
+      dw0[t] = Matrix::Zero(w0.rows(), w0.cols());
+      dw1[t] = Matrix::Zero(w1.rows(), w1.cols());
+      db0[t] = Matrix::Zero(w0.rows(), 1);
+      db1[t] = Matrix::Zero(w1.rows(), 1);
+      Matrix x, d_out, d_hidden, d_x;
+#pragma omp for schedule(static)
+      for (Eigen::Index begin = 0; begin < n; begin += kBlock) {
+        const Eigen::Index count = std::min(kBlock, n - begin);
+        gather(begin, count, x);
+        const auto hidden = hidden_.middleCols(begin, count);
+        d_out.resize(out_.rows(), count);
+        activationBackward(out_.middleCols(begin, count), d_outputs.middleCols(begin, count), d_out.leftCols(count));
+        dw1[t].noalias() += d_out * hidden.transpose();
+        db1[t] += d_out.rowwise().sum();
+        d_hidden.noalias() = w1.transpose() * d_out;
+        d_hidden = d_hidden.cwiseProduct((hidden.array() > T(0)).template cast<T>().matrix());  // ReLU
+        dw0[t].noalias() += d_hidden * x.transpose();
+        db0[t] += d_hidden.rowwise().sum();
+        d_x.noalias() = w0.transpose() * d_hidden;
+        scatter(begin, count, d_x);
+      }
+    }
+    for (size_t t = 0; t < threads; ++t) {
+      if (!dw0[t].size()) continue;
+      mlp_.weightGradients()[0] += dw0[t];
+      mlp_.weightGradients()[1] += dw1[t];
+      mlp_.biasGradients()[0] += db0[t];
+      mlp_.biasGradients()[1] += db1[t];
+    }
+    return grid_.backwardLevelMajor(d_features_.data()) * T(0.5);
   }
+
   std::vector<ParameterBlock<T>> parameters() override {
     std::vector<ParameterBlock<T>> blocks;
     blocks.push_back({grid_.table().data(), grid_.gradients().data(), grid_.table().size(), grid_.touched().data(),
@@ -126,10 +192,36 @@ class HashField final : public RadianceField<T> {
   }
 
  private:
+  static constexpr Eigen::Index kBlock = 256;
+
+  // Samples [begin, begin + count) of the level-major encoding as an (L F) x count matrix.
+  void gather(Eigen::Index begin, Eigen::Index count, Matrix& x) const {
+    const Eigen::Index F = grid_.config().features, n = samples();
+    x.resize(grid_.outputSize(), count);
+    for (int l = 0; l < grid_.config().levels; ++l) {
+      const T* src = features_.data() + (l * n + begin) * F;
+      for (Eigen::Index k = 0; k < count; ++k) {
+        for (Eigen::Index c = 0; c < F; ++c) x(l * F + c, k) = src[k * F + c];
+      }
+    }
+  }
+  void scatter(Eigen::Index begin, Eigen::Index count, const Matrix& d_x) {
+    const Eigen::Index F = grid_.config().features, n = samples();
+    for (int l = 0; l < grid_.config().levels; ++l) {
+      T* dst = d_features_.data() + (l * n + begin) * F;
+      for (Eigen::Index k = 0; k < count; ++k) {
+        for (Eigen::Index c = 0; c < F; ++c) dst[k * F + c] = d_x(l * F + c, k);
+      }
+    }
+  }
+  Eigen::Index samples() const { return static_cast<Eigen::Index>(features_.size()) / grid_.outputSize(); }
+
   int channels_;
   HashGrid<T> grid_;
   Mlp<T> mlp_;
   Matrix out_;
+  std::vector<T> features_, d_features_;  // level-major encoding of the last forward, its gradient
+  Matrix hidden_;                         // the last forward's hidden layer (after the ReLU)
 };
 
 }  // namespace

@@ -3,6 +3,7 @@
 
 #include <cmath>
 #include <random>
+#include <stdexcept>
 
 #include "evkit/nerf/adam.h"
 #include "evkit/nerf/camera.h"
@@ -107,10 +108,13 @@ TEST(PositionalEncoding, BackwardAgainstCentralDifferences) {
   test::expectJacobianNear("positional encoding", flat(dp).transpose(), f, flat(p), kEps, kTol);
 }
 
-TEST(HashGrid, BackwardToTableAndPositionsAgainstCentralDifferences) {
+// Features 2 and 4 take the unrolled kernels, 3 the generic one.
+class HashGridFeatures : public ::testing::TestWithParam<int> {};
+
+TEST_P(HashGridFeatures, BackwardToTableAndPositionsAgainstCentralDifferences) {
   HashGridConfig c;
   c.levels = 3;
-  c.features = 2;
+  c.features = GetParam();
   c.log2_table = 6;  // 64 entries: the finest level hashes
   c.base_resolution = 2;
   c.per_level_scale = 2.0;
@@ -136,11 +140,23 @@ TEST(HashGrid, BackwardToTableAndPositionsAgainstCentralDifferences) {
   test::expectJacobianNear("hash grid table", grad.transpose(), of_table, table, kEps, kTol);
   // Entries with gradient are exactly the touched ones.
   for (size_t e = 0; e < grid.touched().size(); ++e) {
-    const bool nonzero = grad(static_cast<Eigen::Index>(2 * e)) != 0 || grad(static_cast<Eigen::Index>(2 * e + 1)) != 0;
+    bool nonzero = false;
+    for (int j = 0; j < c.features; ++j) nonzero |= grad(static_cast<Eigen::Index>(e) * c.features + j) != 0;
     if (nonzero) {
       EXPECT_TRUE(grid.touched()[e]) << e;
     }
   }
+}
+
+INSTANTIATE_TEST_SUITE_P(Kernels, HashGridFeatures, ::testing::Values(2, 3, 4));
+
+TEST(HashGrid, RejectsAnUnsupportedConfiguration) {
+  HashGridConfig c;
+  c.features = 17;
+  EXPECT_THROW(HashGrid<float>(c, 1), std::invalid_argument);
+  c = HashGridConfig{};
+  c.log2_table = 31;
+  EXPECT_THROW(HashGrid<float>(c, 1), std::invalid_argument);
 }
 
 void checkField(RadianceField<double>& field, const std::string& name) {

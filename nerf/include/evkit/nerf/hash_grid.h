@@ -4,8 +4,11 @@
 // they fit, by the spatial hash (x * 1) ^ (y * 2654435761) ^ (z * 805459861) otherwise; features
 // are trilinearly interpolated. Positions are in [0, 1]^3 (clamped).
 //
-// Backward scatters the feature gradients into the table (each level's table slice owned by one
-// thread: no atomics) and marks the touched entries, so that Adam can update only those.
+// The work runs level by level (threads own whole levels: each level's table slice, ~1 MB, stays
+// in its thread's cache, and the backward scatters into it without atomics) on features stored
+// level-major, [level][sample][feature], so that one level's pass reads and writes contiguous
+// memory. Backward recomputes the corners (cheaper than storing them), marks the touched entries
+// so that Adam can update only those.
 #pragma once
 
 #include <Eigen/Core>
@@ -16,8 +19,8 @@ namespace evkit::nerf {
 
 struct HashGridConfig {
   int levels = 8;
-  int features = 4;
-  int log2_table = 16;     // entries per level
+  int features = 4;        // 1..16
+  int log2_table = 16;     // entries per level, 1..30
   int base_resolution = 16;
   double per_level_scale = 1.5;
 };
@@ -32,8 +35,14 @@ class HashGrid {
   int outputSize() const { return config_.levels * config_.features; }
   int resolution(int level) const { return resolution_[static_cast<size_t>(level)]; }
 
-  Matrix forward(const Matrix& positions);          // 3 x N -> (L F) x N
-  Matrix backward(const Matrix& d_features);        // (L F) x N -> 3 x N; accumulates table grads
+  // Sample-major: 3 x N -> (L F) x N, and back; backward accumulates the table gradients.
+  Matrix forward(const Matrix& positions);
+  Matrix backward(const Matrix& d_features);
+
+  // Level-major: features[(l N + k) F + c] for sample k. forwardLevelMajor keeps the positions
+  // for backwardLevelMajor, which returns d positions (3 x N).
+  void forwardLevelMajor(const Matrix& positions, T* features);
+  Matrix backwardLevelMajor(const T* d_features);
 
   std::vector<T>& table() { return table_; }        // [level][entry][feature]
   std::vector<T>& gradients() { return grad_; }
@@ -41,17 +50,14 @@ class HashGrid {
   void zeroGradients();
 
  private:
-  size_t index(int level, int x, int y, int z) const;
-
   HashGridConfig config_;
   size_t entries_;
   std::vector<int> resolution_;
+  std::vector<uint8_t> dense_;  // per level: direct indexing (the grid fits the table)
   std::vector<T> table_, grad_;
   std::vector<uint8_t> touched_;
-  // Forward's record for backward: corner entries, fractional positions, in-range axes.
-  std::vector<uint32_t> corners_;
-  std::vector<T> fractions_;
-  std::vector<uint8_t> inside_;
+  Matrix positions_;            // forward's clamped positions (N x 3: one array per axis), for backward
+  std::vector<uint8_t> inside_;  // per sample: axes strictly inside (0, 1): the clamp passes the gradient
 };
 
 }  // namespace evkit::nerf
