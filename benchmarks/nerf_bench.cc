@@ -2,9 +2,13 @@
 // reference) and for hash-grid fields of several sizes (the choice of the fast field), and a full
 // training step (rays/s) for each.
 //
-//   ./build/benchmarks/evkit_nerf_bench
+//   ./build/benchmarks/evkit_nerf_bench --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
+//
+// (the median of 5 repetitions: this shared machine drifts by +-20% between runs)
 
 #include <benchmark/benchmark.h>
+
+#include <random>
 
 #include "evkit/nerf/field.h"
 #include "evkit/nerf/train.h"
@@ -14,8 +18,27 @@ namespace {
 
 using MatrixF = Eigen::MatrixXf;
 
-void fieldStep(benchmark::State& state, RadianceField<float>& field, int batch) {
-  const MatrixF p = MatrixF::Random(3, batch) * 0.9f;
+// Positions uniformly random in the volume (the worst case for the caches), or along rays as the
+// renderer asks for them: rays through random pixels of a forward-facing view, 64 stratified
+// samples over NDC depth [-1, 1] each.
+MatrixF samplePositions(int batch, bool along_rays) {
+  if (!along_rays) return MatrixF::Random(3, batch) * 0.9f;
+  MatrixF p(3, batch);
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> u(-0.9f, 0.9f), jitter(0.0f, 1.0f);
+  for (int r = 0; r < batch / 64; ++r) {
+    const float x = u(rng), y = u(rng), dx = 0.05f * u(rng), dy = 0.05f * u(rng);
+    for (int s = 0; s < 64; ++s) {
+      const float t = (static_cast<float>(s) + jitter(rng)) / 64.0f;
+      const int k = r * 64 + s;
+      p(0, k) = x + t * dx, p(1, k) = y + t * dy, p(2, k) = -1.0f + 2.0f * t;
+    }
+  }
+  return p;
+}
+
+void fieldStep(benchmark::State& state, RadianceField<float>& field, int batch, bool along_rays = false) {
+  const MatrixF p = samplePositions(batch, along_rays);
   const MatrixF d = MatrixF::Random(1 + field.channels(), batch);
   for (auto _ : state) {
     field.zeroGradients();
@@ -30,7 +53,7 @@ void BM_MlpField(benchmark::State& state) {
   fieldStep(state, *field, 4096);
 }
 
-// Args: levels, features, log2 table.
+// Args: levels, features, log2 table, samples along rays (1) or uniformly random (0).
 void BM_HashField(benchmark::State& state) {
   HashFieldConfig c;
   c.grid.levels = static_cast<int>(state.range(0));
@@ -38,9 +61,11 @@ void BM_HashField(benchmark::State& state) {
   c.grid.log2_table = static_cast<int>(state.range(2));
   c.grid.per_level_scale = c.grid.levels >= 16 ? 1.38 : 1.5;
   auto field = makeHashField<float>(c, 3, 1);
-  fieldStep(state, *field, 65536);
+  const bool rays = state.range(3) != 0;
+  fieldStep(state, *field, 65536, rays);
   state.SetLabel(std::to_string(c.grid.levels) + "x" + std::to_string(c.grid.features) + ", 2^" + std::to_string(c.grid.log2_table) +
-                 " entries, " + std::to_string(c.grid.levels * (size_t{1} << c.grid.log2_table) * c.grid.features * 4 / 1000000) + " MB");
+                 " entries, " + std::to_string(c.grid.levels * (size_t{1} << c.grid.log2_table) * c.grid.features * 4 / 1000000) + " MB, " +
+                 (rays ? "ray samples" : "random positions"));
 }
 
 void trainingSteps(benchmark::State& state, RadianceField<float>& field, int rays) {
@@ -65,7 +90,16 @@ void BM_TrainStepMlp(benchmark::State& state) {
 }
 
 BENCHMARK(BM_MlpField)->Unit(benchmark::kMillisecond)->UseRealTime();
-BENCHMARK(BM_HashField)->Args({16, 2, 19})->Args({8, 4, 16})->Args({8, 2, 16})->Args({12, 2, 16})->Args({8, 4, 14})->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_HashField)
+    ->Args({16, 2, 19, 0})
+    ->Args({8, 4, 16, 0})
+    ->Args({8, 4, 16, 1})
+    ->Args({8, 2, 16, 0})
+    ->Args({8, 2, 16, 1})
+    ->Args({12, 2, 16, 0})
+    ->Args({8, 4, 14, 0})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 BENCHMARK(BM_TrainStepHash)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_TrainStepMlp)->Unit(benchmark::kMillisecond)->UseRealTime();
 

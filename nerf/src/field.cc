@@ -95,7 +95,7 @@ class MlpField final : public RadianceField<T> {
 
 // The fast field: hash encoding, then one hidden ReLU layer, in blocks of samples that stay in the
 // cache (the encoding's 32 features and the 64 hidden values of a block are a few tens of KB),
-// threads over blocks. Forward keeps the encoding and the hidden layer for backward (cheaper than
+// threads over blocks (the grid's backward: threads over levels). Forward keeps the encoding and the hidden layer for backward (cheaper than
 // recomputing the first layer).
 template <typename T>
 class HashField final : public RadianceField<T> {
@@ -109,28 +109,25 @@ class HashField final : public RadianceField<T> {
 
   Matrix forward(const Matrix& positions) override {
     const Eigen::Index n = positions.cols();
-    features_.resize(static_cast<size_t>(grid_.outputSize() * n));
-    grid_.forwardLevelMajor((positions.array() + T(1)) * T(0.5), features_.data());  // NDC [-1, 1] -> [0, 1]
+    grid_.setPositions((positions.array() + T(1)) * T(0.5));  // NDC [-1, 1] -> [0, 1]
+    features_.resize(grid_.outputSize(), n);
     const Matrix& w0 = mlp_.weights()[0];
     const Matrix& w1 = mlp_.weights()[1];
     const auto& b0 = mlp_.biases()[0];
     const auto& b1 = mlp_.biases()[1];
     Matrix out(1 + channels_, n);
     hidden_.resize(w0.rows(), n);
-#pragma omp parallel
-    {
-      Matrix x;
-#pragma omp for schedule(static)
-      for (Eigen::Index begin = 0; begin < n; begin += kBlock) {
-        const Eigen::Index count = std::min(kBlock, n - begin);
-        gather(begin, count, x);
-        auto hidden = hidden_.middleCols(begin, count);
-        hidden.noalias() = w0 * x;
-        hidden = (hidden.colwise() + b0).cwiseMax(T(0));
-        out.middleCols(begin, count).noalias() = w1 * hidden;
-        out.middleCols(begin, count).colwise() += b1;
-        activate(out.middleCols(begin, count));
-      }
+#pragma omp parallel for schedule(static)
+    for (Eigen::Index begin = 0; begin < n; begin += kBlock) {
+      const Eigen::Index count = std::min(kBlock, n - begin);
+      auto x = features_.middleCols(begin, count);
+      grid_.encode(begin, count, x.data(), x.rows());
+      auto hidden = hidden_.middleCols(begin, count);
+      hidden.noalias() = w0 * x;
+      hidden = (hidden.colwise() + b0).cwiseMax(T(0));
+      out.middleCols(begin, count).noalias() = w1 * hidden;
+      out.middleCols(begin, count).colwise() += b1;
+      activate(out.middleCols(begin, count));
     }
     out_ = out;
     return out;
@@ -140,7 +137,7 @@ class HashField final : public RadianceField<T> {
     const Eigen::Index n = d_outputs.cols();
     const Matrix& w0 = mlp_.weights()[0];
     const Matrix& w1 = mlp_.weights()[1];
-    d_features_.resize(features_.size());
+    d_features_.resize(static_cast<size_t>(features_.size()));
     // Parameter gradients per thread, added in thread order (the same sums for a thread count).
     const size_t threads = static_cast<size_t>(omp_get_max_threads());
     std::vector<Matrix> dw0(threads), dw1(threads), db0(threads), db1(threads);
@@ -151,18 +148,18 @@ class HashField final : public RadianceField<T> {
       dw1[t] = Matrix::Zero(w1.rows(), w1.cols());
       db0[t] = Matrix::Zero(w0.rows(), 1);
       db1[t] = Matrix::Zero(w1.rows(), 1);
-      Matrix x, d_out, d_hidden, d_x;
+      Matrix d_out, d_hidden, d_x;
 #pragma omp for schedule(static)
       for (Eigen::Index begin = 0; begin < n; begin += kBlock) {
         const Eigen::Index count = std::min(kBlock, n - begin);
-        gather(begin, count, x);
+        const auto x = features_.middleCols(begin, count);
         const auto hidden = hidden_.middleCols(begin, count);
         d_out.resize(out_.rows(), count);
         activationBackward(out_.middleCols(begin, count), d_outputs.middleCols(begin, count), d_out.leftCols(count));
         dw1[t].noalias() += d_out * hidden.transpose();
         db1[t] += d_out.rowwise().sum();
         d_hidden.noalias() = w1.transpose() * d_out;
-        d_hidden = d_hidden.cwiseProduct((hidden.array() > T(0)).template cast<T>().matrix());  // ReLU
+        d_hidden = (hidden.array() > T(0)).select(d_hidden, T(0));  // ReLU
         dw0[t].noalias() += d_hidden * x.transpose();
         db0[t] += d_hidden.rowwise().sum();
         d_x.noalias() = w0.transpose() * d_hidden;
@@ -194,19 +191,9 @@ class HashField final : public RadianceField<T> {
  private:
   static constexpr Eigen::Index kBlock = 256;
 
-  // Samples [begin, begin + count) of the level-major encoding as an (L F) x count matrix.
-  void gather(Eigen::Index begin, Eigen::Index count, Matrix& x) const {
-    const Eigen::Index F = grid_.config().features, n = samples();
-    x.resize(grid_.outputSize(), count);
-    for (int l = 0; l < grid_.config().levels; ++l) {
-      const T* src = features_.data() + (l * n + begin) * F;
-      for (Eigen::Index k = 0; k < count; ++k) {
-        for (Eigen::Index c = 0; c < F; ++c) x(l * F + c, k) = src[k * F + c];
-      }
-    }
-  }
+  // d features of samples [begin, begin + count) into the level-major layout of the grid's backward.
   void scatter(Eigen::Index begin, Eigen::Index count, const Matrix& d_x) {
-    const Eigen::Index F = grid_.config().features, n = samples();
+    const Eigen::Index F = grid_.config().features, n = features_.cols();
     for (int l = 0; l < grid_.config().levels; ++l) {
       T* dst = d_features_.data() + (l * n + begin) * F;
       for (Eigen::Index k = 0; k < count; ++k) {
@@ -214,14 +201,13 @@ class HashField final : public RadianceField<T> {
       }
     }
   }
-  Eigen::Index samples() const { return static_cast<Eigen::Index>(features_.size()) / grid_.outputSize(); }
 
   int channels_;
   HashGrid<T> grid_;
   Mlp<T> mlp_;
   Matrix out_;
-  std::vector<T> features_, d_features_;  // level-major encoding of the last forward, its gradient
-  Matrix hidden_;                         // the last forward's hidden layer (after the ReLU)
+  Matrix features_, hidden_;  // the last forward's encoding and hidden layer (after the ReLU)
+  std::vector<T> d_features_;  // level-major, for the grid's backward
 };
 
 }  // namespace

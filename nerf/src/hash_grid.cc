@@ -70,10 +70,11 @@ struct LevelChunk {
   }
 };
 
-// Encodes one level: out[k F + j] for the n samples. F > 0 is a compile-time feature count
+// Encodes one level of n samples: out[k stride + j]. F > 0 is a compile-time feature count
 // (unrolled and vectorised), F = 0 takes it from `features`.
 template <int F, typename T>
-void encodeLevel(const T* const* p, Eigen::Index n, int res, bool dense, uint32_t mask, const T* slice, int features, T* out) {
+void encodeLevel(const T* const* p, Eigen::Index n, int res, bool dense, uint32_t mask, const T* slice, int features, T* out,
+                 Eigen::Index stride) {
   const int nf = F > 0 ? F : features;
   LevelChunk<T> chunk;
   for (Eigen::Index begin = 0; begin < n; begin += kChunk) {
@@ -86,7 +87,7 @@ void encodeLevel(const T* const* p, Eigen::Index n, int res, bool dense, uint32_
         const T* feat = slice + static_cast<size_t>(chunk.idx[c][k]) * static_cast<size_t>(nf);
         for (int j = 0; j < nf; ++j) acc[j] += w * feat[j];
       }
-      T* dst = out + (begin + k) * nf;
+      T* dst = out + (begin + k) * stride;
       for (int j = 0; j < nf; ++j) dst[j] = acc[j];
     }
   }
@@ -100,6 +101,19 @@ void encodeLevelBackward(const T* const* p, Eigen::Index n, int res, bool dense,
                          T* grad, uint8_t* touched, const uint8_t* inside, T* dp) {
   const int nf = F > 0 ? F : features;
   const T scale = T(res);
+  // Consecutive samples of a ray mostly share a cell: each corner's gradient is summed in a
+  // register while its entry stays the same, and written once when it changes (instead of a
+  // read-modify-write chain through memory per sample).
+  using Vec = Eigen::Array<T, (F > 0 ? F : 1), 1>;
+  constexpr uint32_t kNone = ~uint32_t{0};
+  uint32_t pending_entry[8];
+  Vec pending[8];
+  std::fill(pending_entry, pending_entry + 8, kNone);
+  const auto flush = [&](int c) {
+    if (pending_entry[c] == kNone) return;
+    Eigen::Map<Vec>(grad + static_cast<size_t>(pending_entry[c]) * static_cast<size_t>(nf)) += pending[c];
+    touched[pending_entry[c]] = 1;
+  };
   LevelChunk<T> chunk;
   for (Eigen::Index begin = 0; begin < n; begin += kChunk) {
     const int count = static_cast<int>(std::min<Eigen::Index>(kChunk, n - begin));
@@ -109,23 +123,23 @@ void encodeLevelBackward(const T* const* p, Eigen::Index n, int res, bool dense,
       T dot[8];
       for (int c = 0; c < 8; ++c) {
         const T w = chunk.weight(c, k);
-        const size_t e = chunk.idx[c][k];
-        const T* feat = slice + e * static_cast<size_t>(nf);
-        T* ge = grad + e * static_cast<size_t>(nf);
-        T d = 0;
+        const uint32_t e = chunk.idx[c][k];
+        const T* feat = slice + static_cast<size_t>(e) * static_cast<size_t>(nf);
         if constexpr (F > 0) {
-          using Vec = Eigen::Array<T, F, 1>;
           const Eigen::Map<const Vec> gv(gk);
-          Eigen::Map<Vec>(ge) += w * gv;
-          d = (gv * Eigen::Map<const Vec>(feat)).sum();
+          Eigen::Map<Vec>(grad + static_cast<size_t>(e) * static_cast<size_t>(nf)) += w * gv;
+          touched[e] = 1;
+          dot[c] = (gv * Eigen::Map<const Vec>(feat)).sum();
         } else {
+          T* ge = grad + static_cast<size_t>(e) * static_cast<size_t>(nf);
+          T d = 0;
           for (int j = 0; j < nf; ++j) {
             ge[j] += w * gk[j];
             d += gk[j] * feat[j];
           }
+          dot[c] = d;
+          touched[e] = 1;
         }
-        dot[c] = d;
-        touched[e] = 1;
       }
       // d/df of the trilinear sum: differences of the dots along each axis, weighted by the other two.
       const T fx = chunk.f[0][k], fy = chunk.f[1][k], fz = chunk.f[2][k];
@@ -140,14 +154,16 @@ void encodeLevelBackward(const T* const* p, Eigen::Index n, int res, bool dense,
       if (in & 4) d[2] += ddz * scale;
     }
   }
+  if constexpr (F > 0) {
+    for (int c = 0; c < 8; ++c) flush(c);
+  }
 }
 
 }  // namespace
 
 template <typename T>
-void HashGrid<T>::forwardLevelMajor(const Matrix& positions, T* features) {
+void HashGrid<T>::setPositions(const Matrix& positions) {
   const Eigen::Index n = positions.cols();
-  const int F = config_.features;
   positions_.resize(n, 3);  // structure of arrays: one column per axis
   inside_.resize(static_cast<size_t>(n));
   for (Eigen::Index k = 0; k < n; ++k) {
@@ -159,19 +175,23 @@ void HashGrid<T>::forwardLevelMajor(const Matrix& positions, T* features) {
     }
     inside_[static_cast<size_t>(k)] = mask;
   }
-  const T* p[3] = {positions_.col(0).data(), positions_.col(1).data(), positions_.col(2).data()};
+}
+
+template <typename T>
+void HashGrid<T>::encode(Eigen::Index begin, Eigen::Index count, T* out, Eigen::Index stride) const {
+  const int F = config_.features;
+  const T* p[3] = {positions_.col(0).data() + begin, positions_.col(1).data() + begin, positions_.col(2).data() + begin};
   const uint32_t mask = static_cast<uint32_t>(entries_ - 1);
-#pragma omp parallel for schedule(static, 1)  // interleaved: coarse (cheap) and fine levels mix
   for (int l = 0; l < config_.levels; ++l) {
     const int res = resolution_[static_cast<size_t>(l)];
     const bool dense = dense_[static_cast<size_t>(l)];
     const T* slice = table_.data() + static_cast<size_t>(l) * entries_ * static_cast<size_t>(F);
-    T* out = features + static_cast<size_t>(l) * static_cast<size_t>(n) * static_cast<size_t>(F);
+    T* o = out + l * F;
     switch (F) {
-      case 2: encodeLevel<2>(p, n, res, dense, mask, slice, F, out); break;
-      case 4: encodeLevel<4>(p, n, res, dense, mask, slice, F, out); break;
-      case 8: encodeLevel<8>(p, n, res, dense, mask, slice, F, out); break;
-      default: encodeLevel<0>(p, n, res, dense, mask, slice, F, out); break;
+      case 2: encodeLevel<2>(p, count, res, dense, mask, slice, F, o, stride); break;
+      case 4: encodeLevel<4>(p, count, res, dense, mask, slice, F, o, stride); break;
+      case 8: encodeLevel<8>(p, count, res, dense, mask, slice, F, o, stride); break;
+      default: encodeLevel<0>(p, count, res, dense, mask, slice, F, o, stride); break;
     }
   }
 }
@@ -216,14 +236,11 @@ typename HashGrid<T>::Matrix HashGrid<T>::backwardLevelMajor(const T* d_features
 template <typename T>
 typename HashGrid<T>::Matrix HashGrid<T>::forward(const Matrix& positions) {
   const Eigen::Index n = positions.cols();
-  const Eigen::Index F = config_.features;
-  std::vector<T> level_major(static_cast<size_t>(outputSize() * n));
-  forwardLevelMajor(positions, level_major.data());
+  setPositions(positions);
   Matrix out(outputSize(), n);
-  for (int l = 0; l < config_.levels; ++l) {
-    for (Eigen::Index k = 0; k < n; ++k) {
-      for (Eigen::Index c = 0; c < F; ++c) out(l * F + c, k) = level_major[static_cast<size_t>((l * n + k) * F + c)];
-    }
+#pragma omp parallel for schedule(static)
+  for (Eigen::Index begin = 0; begin < n; begin += 256) {
+    encode(begin, std::min<Eigen::Index>(256, n - begin), out.col(begin).data(), outputSize());
   }
   return out;
 }
@@ -245,10 +262,13 @@ template <typename T>
 void HashGrid<T>::zeroGradients() {
   // Only touched entries carry gradient: clear those, not the whole table.
   const size_t F = static_cast<size_t>(config_.features);
-  for (size_t e = 0; e < touched_.size(); ++e) {
-    if (!touched_[e]) continue;
-    std::fill(grad_.begin() + static_cast<std::ptrdiff_t>(e * F), grad_.begin() + static_cast<std::ptrdiff_t>((e + 1) * F), T(0));
-    touched_[e] = 0;
+#pragma omp parallel for schedule(static, 1)
+  for (int l = 0; l < config_.levels; ++l) {
+    for (size_t e = static_cast<size_t>(l) * entries_; e < static_cast<size_t>(l + 1) * entries_; ++e) {
+      if (!touched_[e]) continue;
+      std::fill(grad_.begin() + static_cast<std::ptrdiff_t>(e * F), grad_.begin() + static_cast<std::ptrdiff_t>((e + 1) * F), T(0));
+      touched_[e] = 0;
+    }
   }
 }
 

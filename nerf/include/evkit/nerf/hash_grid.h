@@ -4,11 +4,13 @@
 // they fit, by the spatial hash (x * 1) ^ (y * 2654435761) ^ (z * 805459861) otherwise; features
 // are trilinearly interpolated. Positions are in [0, 1]^3 (clamped).
 //
-// The work runs level by level (threads own whole levels: each level's table slice, ~1 MB, stays
-// in its thread's cache, and the backward scatters into it without atomics) on features stored
-// level-major, [level][sample][feature], so that one level's pass reads and writes contiguous
-// memory. Backward recomputes the corners (cheaper than storing them), marks the touched entries
-// so that Adam can update only those.
+// Forward runs over blocks of samples (threads own blocks; the tables are only read), level by level
+// within a block, corners and weights computed for 64 samples at once (vectorised over samples).
+// Backward runs level by level (threads own whole levels: each level's table slice, ~1 MB, stays
+// in its thread's cache, and the gradient scatter needs no atomics) on feature gradients stored
+// level-major, [level][sample][feature], so that one level's pass reads contiguous memory; it
+// recomputes the corners (cheaper than storing them) and marks the touched entries so that Adam
+// can update only those.
 #pragma once
 
 #include <Eigen/Core>
@@ -39,9 +41,12 @@ class HashGrid {
   Matrix forward(const Matrix& positions);
   Matrix backward(const Matrix& d_features);
 
-  // Level-major: features[(l N + k) F + c] for sample k. forwardLevelMajor keeps the positions
-  // for backwardLevelMajor, which returns d positions (3 x N).
-  void forwardLevelMajor(const Matrix& positions, T* features);
+  // The pieces, for callers that work in blocks of samples: setPositions keeps the positions
+  // (3 x N) for encode and backward; encode writes samples [begin, begin + count) sample-major,
+  // out[(k - begin) stride + l F + c] (thread-safe: reads only); backwardLevelMajor takes the
+  // feature gradients level-major, d[(l N + k) F + c], and returns d positions (3 x N).
+  void setPositions(const Matrix& positions);
+  void encode(Eigen::Index begin, Eigen::Index count, T* out, Eigen::Index stride) const;
   Matrix backwardLevelMajor(const T* d_features);
 
   std::vector<T>& table() { return table_; }        // [level][entry][feature]
