@@ -406,14 +406,32 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
 
 template <typename T>
 cv::Mat BenerfProblem<T>::render(int64_t t_us, cv::Mat* disparity) {
+  return renderRows(t_us, disparity, camera_.height);
+}
+
+template <typename T>
+double BenerfProblem<T>::renderSeconds() {
+  const int rows = std::min(camera_.height, rowsPerRenderBatch());
+  const auto start = std::chrono::steady_clock::now();
+  renderRows(0, nullptr, rows);
+  return secondsSince(start) * camera_.height / rows;
+}
+
+template <typename T>
+int BenerfProblem<T>::rowsPerRenderBatch() const {
+  return std::max(1, 8192 / std::max(1, camera_.width));
+}
+
+template <typename T>
+cv::Mat BenerfProblem<T>::renderRows(int64_t t_us, cv::Mat* disparity, int H) {
   using Matrix = typename nerf::RadianceField<T>::Matrix;
-  const int C = channels_, S = options_.samples, W = camera_.width, H = camera_.height;
+  const int C = channels_, S = options_.samples, W = camera_.width;
   const SE3 pose = trajectory_.poseAt(t_us);
   cv::Mat image(H, W, CV_MAKETYPE(CV_32F, C));
   if (disparity) disparity->create(H, W, CV_32F);
   const std::vector<float> centres(static_cast<size_t>(S), 0.5f);
   const nerf::RenderSettings settings{};
-  const int rows_per_batch = std::max(1, 8192 / std::max(1, W));
+  const int rows_per_batch = rowsPerRenderBatch();
   for (int y0 = 0; y0 < H; y0 += rows_per_batch) {
     const int rows = std::min(rows_per_batch, H - y0), R = rows * W;
     Matrix positions(3, static_cast<Eigen::Index>(R) * S);
@@ -585,7 +603,13 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
 
   const Frame* gt = midGroundTruth(obs);
   int psnr_every = gt ? std::max(1, iterations / 10) : 0;
+  // The final renders: the requested frames, and the mid-exposure frame for the disparity unless
+  // it is one of them.
+  const int64_t mid = obs.blurry.midExposure();
+  const bool mid_requested = std::find(request.times_us.begin(), request.times_us.end(), mid) != request.times_us.end();
+  const int final_renders = static_cast<int>(request.times_us.size()) + (mid_requested ? 0 : 1);
   const auto train_start = std::chrono::steady_clock::now();
+  double curve_seconds = 0;  // spent on the training-PSNR renders
   double loss_sum = 0;
   int loss_count = 0;
   for (int it = first; it < iterations; ++it) {
@@ -610,14 +634,21 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
       loss_count = 0;
     }
     if (psnr_every > 0 && (done % psnr_every == 0 || done == iterations)) {
-      result.curve_psnr.emplace_back(done, psnr(problem.render(obs.blurry.midExposure()), gt->image));
+      const auto curve_start = std::chrono::steady_clock::now();
+      result.curve_psnr.emplace_back(done, psnr(problem.render(mid), gt->image));
+      curve_seconds += secondsSince(curve_start);
     }
-    // A wall-time budget: after a few iterations, the count that fits (the schedule follows).
+    // A wall-time budget: after a few iterations, the count that fits with the renders still to
+    // come (the schedule follows); the training-PSNR curve gets at most a quarter of what is left.
     if (o.budget_seconds > 0 && done == first + 20) {
-      const double per_iteration = secondsSince(train_start) / 20;
-      iterations = std::max(done + 1, static_cast<int>((o.budget_seconds * 0.9 - secondsSince(start)) / per_iteration) + done);
+      const double per_iteration = (secondsSince(train_start) - curve_seconds) / 20;
+      const double render_seconds = problem.renderSeconds();
+      double left = o.budget_seconds * 0.95 - secondsSince(start) - final_renders * render_seconds;
+      int curve_renders = gt ? std::min(10, static_cast<int>(0.25 * std::max(0.0, left) / render_seconds)) : 0;
+      left -= curve_renders * render_seconds;
+      iterations = std::max(done + 1, static_cast<int>(left / per_iteration) + done);
       setSchedule(iterations);
-      if (gt) psnr_every = std::max(1, iterations / 10);
+      psnr_every = curve_renders > 0 ? std::max(1, iterations / curve_renders) : 0;
     }
     const bool stop = o.stop_after > 0 && done >= o.stop_after;
     if (!o.checkpoint.empty() && (done % o.checkpoint_every == 0 || done == iterations || stop)) {
@@ -630,12 +661,12 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
   const auto render_start = std::chrono::steady_clock::now();
   for (int64_t t : request.times_us) {
     Frame f;
-    f.image = problem.render(t);
+    f.image = problem.render(t, t == mid ? &result.disparity : nullptr);
     f.exposure_start_us = f.exposure_end_us = t;
     f.bit_depth = obs.blurry.bit_depth;
     result.frames.push_back(std::move(f));
   }
-  problem.render(obs.blurry.midExposure(), &result.disparity);
+  if (!mid_requested) problem.render(mid, &result.disparity);
   result.timings_s["render"] = secondsSince(render_start);
   std::vector<StampedPose> trajectory;
   const int64_t t0 = obs.blurry.exposure_start_us, t1 = obs.blurry.exposure_end_us;

@@ -69,7 +69,7 @@ struct BenerfOptions {
   double near = 1.0;      // NDC near plane
   double field_lr = 1e-2, knot_lr = 3e-3;
   double lr_final = 0.1;  // both rates decay exponentially to this fraction at the last iteration
-  double budget_seconds = 0;  // > 0: the iteration count is chosen to fit this wall time
+  double budget_seconds = 0;  // > 0: the iteration count is chosen so that the whole run (training and renders) fits this wall time
   uint64_t seed = 1;
   int threads = 0;  // 0: OpenMP's default
   LogMapping log;
@@ -117,6 +117,8 @@ class BenerfProblem {
   // A sharp render at time t (linear, the blurry frame's channels) and, optionally, its disparity
   // (1 / depth in the units of the NDC frame, background = 0).
   cv::Mat render(int64_t t_us, cv::Mat* disparity = nullptr);
+  // Wall seconds of one full render, extrapolated from rendering one batch of rows.
+  double renderSeconds();
 
   nerf::RadianceField<T>& field() { return *field_; }
   Trajectory& trajectory() { return trajectory_; }
@@ -128,6 +130,8 @@ class BenerfProblem {
 
  private:
   double accumulatedEvents(int pixel, int64_t t_begin, int64_t t_end) const;
+  int rowsPerRenderBatch() const;
+  cv::Mat renderRows(int64_t t_us, cv::Mat* disparity, int rows);  // the first `rows` rows
 
   BenerfOptions options_;
   nerf::PinholeCamera camera_;
