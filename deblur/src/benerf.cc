@@ -442,7 +442,14 @@ cv::Mat BenerfProblem<T>::renderRows(int64_t t_us, cv::Mat* disparity, int H) {
       const size_t o = static_cast<size_t>(r) * S;
       sampleRayInto<T>(ray, S, centres.data(), options_.depth_scale, positions, static_cast<Eigen::Index>(o), &ts[o], &delta[o]);
     }
-    const Matrix out = field_->forward(positions);
+    // The field in chunks: the MLP keeps every layer's activations, which for a whole batch of
+    // rows would be gigabytes.
+    Matrix out(1 + C, positions.cols());
+    constexpr Eigen::Index kFieldChunk = 16384;
+    for (Eigen::Index c0 = 0; c0 < positions.cols(); c0 += kFieldChunk) {
+      const Eigen::Index count = std::min(kFieldChunk, positions.cols() - c0);
+      out.middleCols(c0, count) = field_->forward(positions.middleCols(c0, count));
+    }
 #pragma omp parallel for schedule(static)
     for (int r = 0; r < R; ++r) {
       std::vector<T> sigma(static_cast<size_t>(S)), colours(static_cast<size_t>(S) * C);
