@@ -238,9 +238,10 @@ typename HashGrid<T>::Matrix HashGrid<T>::forward(const Matrix& positions) {
   const Eigen::Index n = positions.cols();
   setPositions(positions);
   Matrix out(outputSize(), n);
+  constexpr Eigen::Index kBlock = 256;  // samples per thread's block
 #pragma omp parallel for schedule(static)
-  for (Eigen::Index begin = 0; begin < n; begin += 256) {
-    encode(begin, std::min<Eigen::Index>(256, n - begin), out.col(begin).data(), outputSize());
+  for (Eigen::Index begin = 0; begin < n; begin += kBlock) {
+    encode(begin, std::min(kBlock, n - begin), out.col(begin).data(), outputSize());
   }
   return out;
 }
