@@ -776,6 +776,8 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
       o.field_lr = number(key, value);
     } else if (key == "knot_lr") {
       o.knot_lr = number(key, value);
+    } else if (key == "lr_final") {
+      o.lr_final = number(key, value);
     } else if (key == "seed") {
       o.seed = static_cast<uint64_t>(settingInt(key, value, 0));
     } else if (key == "threads") {
