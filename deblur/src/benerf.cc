@@ -764,6 +764,8 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
       o.samples = settingInt(key, value, 2);
     } else if (key == "levels") {
       o.hash.grid.levels = settingInt(key, value, 1);
+    } else if (key == "features") {
+      o.hash.grid.features = settingInt(key, value, 1);
     } else if (key == "table") {
       o.hash.grid.log2_table = settingInt(key, value, 8);
       if (o.hash.grid.log2_table > 24) throw Error("benerf: table (log2 entries) must be at most 24");

@@ -4,6 +4,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <type_traits>
+
+#include "small_layer.h"
 
 namespace evkit::nerf {
 
@@ -102,7 +105,10 @@ class HashField final : public RadianceField<T> {
  public:
   using Matrix = typename RadianceField<T>::Matrix;
   HashField(const HashFieldConfig& c, int channels, uint64_t seed)
-      : channels_(channels), grid_(c.grid, seed), mlp_({grid_.outputSize(), c.hidden, 1 + channels}, -1, seed + 1) {}
+      : channels_(channels),
+        grid_(c.grid, seed),
+        mlp_({grid_.outputSize(), c.hidden, 1 + channels}, -1, seed + 1),
+        fast_layers_(EVKIT_SMALL_LAYER && std::is_same_v<T, float> && grid_.outputSize() == 32 && c.hidden == 64) {}
 
   std::string name() const override { return "hash"; }
   int channels() const override { return channels_; }
@@ -123,8 +129,15 @@ class HashField final : public RadianceField<T> {
       auto x = features_.middleCols(begin, count);
       grid_.encode(begin, count, x.data(), x.rows());
       auto hidden = hidden_.middleCols(begin, count);
-      hidden.noalias() = w0 * x;
-      hidden = (hidden.colwise() + b0).cwiseMax(T(0));
+#if EVKIT_SMALL_LAYER
+      if constexpr (std::is_same_v<T, float>) {
+        if (fast_layers_) small_layer::forwardRelu<64>(w0.data(), b0.data(), 32, x.data(), static_cast<int>(count), hidden.data());
+      }
+#endif
+      if (!fast_layers_) {
+        hidden.noalias() = w0 * x;
+        hidden = (hidden.colwise() + b0).cwiseMax(T(0));
+      }
       out.middleCols(begin, count).noalias() = w1 * hidden;
       out.middleCols(begin, count).colwise() += b1;
       activate(out.middleCols(begin, count));
@@ -141,6 +154,7 @@ class HashField final : public RadianceField<T> {
     // Parameter gradients per thread, added in thread order (the same sums for a thread count).
     const size_t threads = static_cast<size_t>(omp_get_max_threads());
     std::vector<Matrix> dw0(threads), dw1(threads), db0(threads), db1(threads);
+    const Matrix w0t = w0.transpose();
 #pragma omp parallel
     {
       const size_t t = static_cast<size_t>(omp_get_thread_num());
@@ -160,9 +174,20 @@ class HashField final : public RadianceField<T> {
         db1[t] += d_out.rowwise().sum();
         d_hidden.noalias() = w1.transpose() * d_out;
         d_hidden = (hidden.array() > T(0)).select(d_hidden, T(0));  // ReLU
-        dw0[t].noalias() += d_hidden * x.transpose();
         db0[t] += d_hidden.rowwise().sum();
-        d_x.noalias() = w0.transpose() * d_hidden;
+#if EVKIT_SMALL_LAYER
+        if constexpr (std::is_same_v<T, float>) {
+          if (fast_layers_) {
+            d_x.resize(x.rows(), count);
+            small_layer::weightGradient<64>(d_hidden.data(), x.data(), 32, static_cast<int>(count), dw0[t].data());
+            small_layer::inputGradient<32>(w0t.data(), 64, d_hidden.data(), static_cast<int>(count), d_x.data());
+          }
+        }
+#endif
+        if (!fast_layers_) {
+          dw0[t].noalias() += d_hidden * x.transpose();
+          d_x.noalias() = w0t * d_hidden;
+        }
         scatter(begin, count, d_x);
       }
     }
@@ -191,6 +216,7 @@ class HashField final : public RadianceField<T> {
  private:
   static constexpr Eigen::Index kBlock = 256;
 
+
   // d features of samples [begin, begin + count) into the level-major layout of the grid's backward.
   void scatter(Eigen::Index begin, Eigen::Index count, const Matrix& d_x) {
     const Eigen::Index F = grid_.config().features, n = features_.cols();
@@ -208,6 +234,9 @@ class HashField final : public RadianceField<T> {
   Matrix out_;
   Matrix features_, hidden_;  // the last forward's encoding and hidden layer (after the ReLU)
   std::vector<T> d_features_;  // level-major, for the grid's backward
+  // The register-blocked first layer (small_layer.h; AVX-512 targets) for its common shape in
+  // float: 32 encoded features (8 x 4, 16 x 2) into 64 hidden units; Eigen's products otherwise.
+  bool fast_layers_;
 };
 
 }  // namespace

@@ -211,6 +211,46 @@ TEST(Fields, BackwardOfBothFieldsAgainstCentralDifferences) {
   checkField(*hash, "hash field");
 }
 
+// The float hash field runs its first layer through the register-blocked kernels (32 features into
+// 64 hidden units), the double one through Eigen (checked above against central differences): with
+// the same parameters both must give the same outputs and gradients, up to float rounding. 263
+// samples: a full block of 256 and a tail that is not a multiple of the kernels' 4 samples.
+TEST(Fields, FloatHashFieldKernelsMatchTheDoubleField) {
+  for (const int channels : {1, 3}) {
+    HashFieldConfig c;  // 8 levels x 4 features, hidden 64
+    c.grid.log2_table = 10;
+    auto fd = makeHashField<double>(c, channels, 3);
+    auto ff = makeHashField<float>(c, channels, 3);
+    std::vector<ParameterBlock<double>> pd = fd->parameters();
+    std::vector<ParameterBlock<float>> pf = ff->parameters();
+    ASSERT_EQ(pd.size(), pf.size());
+    for (size_t b = 0; b < pd.size(); ++b) {
+      for (size_t i = 0; i < pd[b].size; ++i) {
+        if (b == 0) pd[b].values[i] *= 1e4;  // O(1) features, as above
+        if (b > 0) pd[b].values[i] += 0.05 * (static_cast<double>(i % 7) - 3);  // non-zero biases
+        pf[b].values[i] = static_cast<float>(pd[b].values[i]);
+      }
+    }
+    const int n = 263;
+    const MatrixD p = MatrixD::Random(3, n) * 0.9;
+    const MatrixD w = MatrixD::Random(1 + channels, n);
+    fd->zeroGradients();
+    ff->zeroGradients();
+    const MatrixD out_d = fd->forward(p);
+    const Eigen::MatrixXf out_f = ff->forward(p.cast<float>());
+    const MatrixD dp_d = fd->backward(w);
+    const Eigen::MatrixXf dp_f = ff->backward(w.cast<float>());
+    EXPECT_LT((out_f.cast<double>() - out_d).cwiseAbs().maxCoeff(), 1e-4 * std::max(1.0, out_d.cwiseAbs().maxCoeff())) << channels;
+    EXPECT_LT((dp_f.cast<double>() - dp_d).cwiseAbs().maxCoeff(), 1e-3 * std::max(1.0, dp_d.cwiseAbs().maxCoeff())) << channels;
+    for (size_t b = 0; b < pd.size(); ++b) {
+      double scale = 1, worst = 0;
+      for (size_t i = 0; i < pd[b].size; ++i) scale = std::max(scale, std::abs(pd[b].gradients[i]));
+      for (size_t i = 0; i < pd[b].size; ++i) worst = std::max(worst, std::abs(pf[b].gradients[i] - pd[b].gradients[i]));
+      EXPECT_LT(worst, 1e-4 * scale) << "block " << b << ", channels " << channels;
+    }
+  }
+}
+
 TEST(Camera, NdcPointPoseJacobianAgainstCentralDifferences) {
   PinholeCamera cam{64, 48, 60.0, 58.0, 31.5, 23.5, {}};
   const SE3 T(expSO3(Vector3(0.02, -0.03, 0.01)), Vector3(0.05, -0.02, 0.03));

@@ -1,0 +1,135 @@
+// Register-blocked kernels for the hash field's first MLP layer (inputs x hidden, both multiples of
+// 16, float), on a block of samples that stays in the cache. They replace Eigen's general matrix
+// product for these shapes: for a 64 x 32 weight and a few hundred samples, Eigen packs both
+// operands on every call; here the weight columns stream
+// from L1 while 16 accumulators stay in registers (4 samples x 64 outputs, or 4 inputs x 64
+// outputs). Written with the generic vector type of GCC and Clang. Built only for targets with AVX-512 (EVKIT_SMALL_LAYER is then 1): there a 16-float vector is one
+// register; with narrower vectors 16 accumulators of 16 floats would not fit the register file, and
+// Eigen's products are used instead. Sums run in a fixed order: the results depend only on the
+// inputs.
+#pragma once
+
+#if defined(__AVX512F__) && defined(__GNUC__)
+#define EVKIT_SMALL_LAYER 1
+
+#include <cstring>
+
+namespace evkit::nerf::small_layer {
+
+using V16 = float __attribute__((vector_size(64)));  // loads and stores through memcpy: no alignment needed
+
+inline V16 load(const float* p) {
+  V16 v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+inline void store(float* p, V16 v) { std::memcpy(p, &v, sizeof v); }
+inline V16 splat(float x) { return V16{} + x; }
+// Keeps a loaded vector in a register: without it GCC folds the load into every FMA that uses it
+// (a memory operand per FMA), and the kernels become bound by loads instead of FMAs.
+inline void pin(V16& v) { asm("" : "+v"(v)); }
+
+// Forward of a ReLU layer: h(:, s) = max(0, W x(:, s) + b), W hidden x inputs column-major, x
+// inputs x count column-major, h hidden x count column-major.
+template <int kHidden>
+void forwardRelu(const float* W, const float* b, int inputs, const float* x, int count, float* h) {
+  constexpr int kV = kHidden / 16;
+  int s = 0;
+  for (; s + 4 <= count; s += 4) {
+    V16 acc[4][kV];
+    for (int v = 0; v < kV; ++v) acc[0][v] = acc[1][v] = acc[2][v] = acc[3][v] = load(b + 16 * v);
+    const float* x0 = x + static_cast<size_t>(s) * inputs;
+    for (int k = 0; k < inputs; ++k) {
+      V16 w[kV];
+      for (int v = 0; v < kV; ++v) {
+        w[v] = load(W + static_cast<size_t>(k) * kHidden + 16 * v);
+        pin(w[v]);
+      }
+      for (int i = 0; i < 4; ++i) {
+        const V16 xi = splat(x0[static_cast<size_t>(i) * inputs + k]);
+        for (int v = 0; v < kV; ++v) acc[i][v] += w[v] * xi;
+      }
+    }
+    for (int i = 0; i < 4; ++i) {
+      for (int v = 0; v < kV; ++v) {
+        const V16 a = acc[i][v];
+        store(h + static_cast<size_t>(s + i) * kHidden + 16 * v, a > V16{} ? a : V16{});
+      }
+    }
+  }
+  for (; s < count; ++s) {
+    V16 acc[kV];
+    for (int v = 0; v < kV; ++v) acc[v] = load(b + 16 * v);
+    for (int k = 0; k < inputs; ++k) {
+      const V16 xk = splat(x[static_cast<size_t>(s) * inputs + k]);
+      for (int v = 0; v < kV; ++v) acc[v] += load(W + static_cast<size_t>(k) * kHidden + 16 * v) * xk;
+    }
+    for (int v = 0; v < kV; ++v) store(h + static_cast<size_t>(s) * kHidden + 16 * v, acc[v] > V16{} ? acc[v] : V16{});
+  }
+}
+
+// Weight gradient: dW += dh x^T (dW hidden x inputs column-major, dh hidden x count, x inputs x
+// count), four input columns at a time over all samples.
+template <int kHidden>
+void weightGradient(const float* dh, const float* x, int inputs, int count, float* dW) {
+  constexpr int kV = kHidden / 16;
+  for (int k = 0; k < inputs; k += 4) {
+    const int kn = inputs - k < 4 ? inputs - k : 4;
+    V16 acc[4][kV];
+    for (int j = 0; j < kn; ++j) {
+      for (int v = 0; v < kV; ++v) acc[j][v] = load(dW + static_cast<size_t>(k + j) * kHidden + 16 * v);
+    }
+    for (int s = 0; s < count; ++s) {
+      V16 d[kV];
+      for (int v = 0; v < kV; ++v) d[v] = load(dh + static_cast<size_t>(s) * kHidden + 16 * v);
+      const float* xs = x + static_cast<size_t>(s) * inputs + k;
+      for (int j = 0; j < kn; ++j) {
+        const V16 xj = splat(xs[j]);
+        for (int v = 0; v < kV; ++v) acc[j][v] += d[v] * xj;
+      }
+    }
+    for (int j = 0; j < kn; ++j) {
+      for (int v = 0; v < kV; ++v) store(dW + static_cast<size_t>(k + j) * kHidden + 16 * v, acc[j][v]);
+    }
+  }
+}
+
+// Input gradient: dx(:, s) = W^T dh(:, s), with Wt = W^T (inputs x hidden column-major, i.e. W's
+// rows contiguous); inputs a multiple of 16 (kIn); four samples at a time.
+template <int kIn>
+void inputGradient(const float* Wt, int hidden, const float* dh, int count, float* dx) {
+  constexpr int kV = kIn / 16;
+  int s = 0;
+  for (; s + 4 <= count; s += 4) {
+    V16 acc[4][kV] = {};
+    const float* d0 = dh + static_cast<size_t>(s) * hidden;
+    for (int j = 0; j < hidden; ++j) {
+      V16 w[kV];
+      for (int v = 0; v < kV; ++v) {
+        w[v] = load(Wt + static_cast<size_t>(j) * kIn + 16 * v);
+        pin(w[v]);
+      }
+      for (int i = 0; i < 4; ++i) {
+        const V16 di = splat(d0[static_cast<size_t>(i) * hidden + j]);
+        for (int v = 0; v < kV; ++v) acc[i][v] += w[v] * di;
+      }
+    }
+    for (int i = 0; i < 4; ++i) {
+      for (int v = 0; v < kV; ++v) store(dx + static_cast<size_t>(s + i) * kIn + 16 * v, acc[i][v]);
+    }
+  }
+  for (; s < count; ++s) {
+    V16 acc[kV] = {};
+    for (int j = 0; j < hidden; ++j) {
+      const V16 dj = splat(dh[static_cast<size_t>(s) * hidden + j]);
+      for (int v = 0; v < kV; ++v) acc[v] += load(Wt + static_cast<size_t>(j) * kIn + 16 * v) * dj;
+    }
+    for (int v = 0; v < kV; ++v) store(dx + static_cast<size_t>(s) * kIn + 16 * v, acc[v]);
+  }
+}
+
+}  // namespace evkit::nerf::small_layer
+
+#else
+#define EVKIT_SMALL_LAYER 0
+#endif
