@@ -108,7 +108,7 @@ class HashField final : public RadianceField<T> {
       : channels_(channels),
         grid_(c.grid, seed),
         mlp_({grid_.outputSize(), c.hidden, 1 + channels}, -1, seed + 1),
-        fast_layers_(EVKIT_SMALL_LAYER && std::is_same_v<T, float> && grid_.outputSize() == 32 && c.hidden == 64) {}
+        fast_layers_(EVKIT_SMALL_LAYER && std::is_same_v<T, float> && grid_.outputSize() == 32 && c.hidden == 64 && (channels == 1 || channels == 3)) {}
 
   std::string name() const override { return "hash"; }
   int channels() const override { return channels_; }
@@ -153,13 +153,14 @@ class HashField final : public RadianceField<T> {
     d_features_.resize(static_cast<size_t>(features_.size()));
     // Parameter gradients per thread, added in thread order (the same sums for a thread count).
     const size_t threads = static_cast<size_t>(omp_get_max_threads());
-    std::vector<Matrix> dw0(threads), dw1(threads), db0(threads), db1(threads);
-    const Matrix w0t = w0.transpose();
+    std::vector<Matrix> dw0(threads), dw1(threads), dw1t(threads), db0(threads), db1(threads);
+    const Matrix w0t = w0.transpose(), w1t = w1.transpose();
 #pragma omp parallel
     {
       const size_t t = static_cast<size_t>(omp_get_thread_num());
       dw0[t] = Matrix::Zero(w0.rows(), w0.cols());
       dw1[t] = Matrix::Zero(w1.rows(), w1.cols());
+      dw1t[t] = Matrix::Zero(w1.cols(), w1.rows());
       db0[t] = Matrix::Zero(w0.rows(), 1);
       db1[t] = Matrix::Zero(w1.rows(), 1);
       Matrix d_out, d_hidden, d_x;
@@ -170,21 +171,28 @@ class HashField final : public RadianceField<T> {
         const auto hidden = hidden_.middleCols(begin, count);
         d_out.resize(out_.rows(), count);
         activationBackward(out_.middleCols(begin, count), d_outputs.middleCols(begin, count), d_out.leftCols(count));
-        dw1[t].noalias() += d_out * hidden.transpose();
         db1[t] += d_out.rowwise().sum();
-        d_hidden.noalias() = w1.transpose() * d_out;
-        d_hidden = (hidden.array() > T(0)).select(d_hidden, T(0));  // ReLU
-        db0[t] += d_hidden.rowwise().sum();
 #if EVKIT_SMALL_LAYER
         if constexpr (std::is_same_v<T, float>) {
           if (fast_layers_) {
+            d_hidden.resize(w0.rows(), count);
             d_x.resize(x.rows(), count);
-            small_layer::weightGradient<64>(d_hidden.data(), x.data(), 32, static_cast<int>(count), dw0[t].data());
-            small_layer::inputGradient<32>(w0t.data(), 64, d_hidden.data(), static_cast<int>(count), d_x.data());
+            const int c = static_cast<int>(count);
+            if (channels_ == 1) {
+              small_layer::outputLayerBackward<64, 2>(w1t.data(), hidden.data(), d_out.data(), c, d_hidden.data(), db0[t].data(), dw1t[t].data());
+            } else {
+              small_layer::outputLayerBackward<64, 4>(w1t.data(), hidden.data(), d_out.data(), c, d_hidden.data(), db0[t].data(), dw1t[t].data());
+            }
+            small_layer::weightGradient<64>(d_hidden.data(), x.data(), 32, c, dw0[t].data());
+            small_layer::inputGradient<32>(w0t.data(), 64, d_hidden.data(), c, d_x.data());
           }
         }
 #endif
         if (!fast_layers_) {
+          dw1[t].noalias() += d_out * hidden.transpose();
+          d_hidden.noalias() = w1.transpose() * d_out;
+          d_hidden = (hidden.array() > T(0)).select(d_hidden, T(0));  // ReLU
+          db0[t] += d_hidden.rowwise().sum();
           dw0[t].noalias() += d_hidden * x.transpose();
           d_x.noalias() = w0t * d_hidden;
         }
@@ -194,7 +202,7 @@ class HashField final : public RadianceField<T> {
     for (size_t t = 0; t < threads; ++t) {
       if (!dw0[t].size()) continue;
       mlp_.weightGradients()[0] += dw0[t];
-      mlp_.weightGradients()[1] += dw1[t];
+      mlp_.weightGradients()[1] += dw1[t] + dw1t[t].transpose();
       mlp_.biasGradients()[0] += db0[t];
       mlp_.biasGradients()[1] += db1[t];
     }
@@ -234,8 +242,8 @@ class HashField final : public RadianceField<T> {
   Matrix out_;
   Matrix features_, hidden_;  // the last forward's encoding and hidden layer (after the ReLU)
   std::vector<T> d_features_;  // level-major, for the grid's backward
-  // The register-blocked first layer (small_layer.h; AVX-512 targets) for its common shape in
-  // float: 32 encoded features (8 x 4, 16 x 2) into 64 hidden units; Eigen's products otherwise.
+  // The register-blocked kernels (small_layer.h; AVX-512 targets) for the common shape in float: 32
+  // encoded features (8 x 4, 16 x 2) into 64 hidden units, grey or colour; Eigen's products otherwise.
   bool fast_layers_;
 };
 

@@ -128,6 +128,55 @@ void inputGradient(const float* Wt, int hidden, const float* dh, int count, floa
   }
 }
 
+// Back through a linear output layer (kOut outputs) and the ReLU before it: with Wt = W^T
+// (kHidden x kOut column-major) and h the ReLU's output, dh(:, s) = [h(:, s) > 0] (Wt dy(:, s));
+// db += sum_s dh(:, s); dWt += sum_s h(:, s) dy(:, s)^T (the output layer's weight gradient,
+// transposed).
+template <int kHidden, int kOut>
+void outputLayerBackward(const float* Wt, const float* h, const float* dy, int count, float* dh, float* db, float* dWt) {
+  constexpr int kV = kHidden / 16;
+  {
+    V16 w[kOut][kV], bias[kV];
+    for (int o = 0; o < kOut; ++o) {
+      for (int v = 0; v < kV; ++v) {
+        w[o][v] = load(Wt + static_cast<size_t>(o) * kHidden + 16 * v);
+        pin(w[o][v]);
+      }
+    }
+    for (int v = 0; v < kV; ++v) bias[v] = load(db + 16 * v);
+    for (int s = 0; s < count; ++s) {
+      const float* ys = dy + static_cast<size_t>(s) * kOut;
+      V16 d[kV] = {};
+      for (int o = 0; o < kOut; ++o) {
+        const V16 yo = splat(ys[o]);
+        for (int v = 0; v < kV; ++v) d[v] += w[o][v] * yo;
+      }
+      for (int v = 0; v < kV; ++v) {
+        const V16 hv = load(h + static_cast<size_t>(s) * kHidden + 16 * v);
+        const V16 masked = hv > V16{} ? d[v] : V16{};
+        bias[v] += masked;
+        store(dh + static_cast<size_t>(s) * kHidden + 16 * v, masked);
+      }
+    }
+    for (int v = 0; v < kV; ++v) store(db + 16 * v, bias[v]);
+  }
+  V16 acc[kOut][kV];
+  for (int o = 0; o < kOut; ++o) {
+    for (int v = 0; v < kV; ++v) acc[o][v] = load(dWt + static_cast<size_t>(o) * kHidden + 16 * v);
+  }
+  for (int s = 0; s < count; ++s) {
+    V16 hv[kV];
+    for (int v = 0; v < kV; ++v) hv[v] = load(h + static_cast<size_t>(s) * kHidden + 16 * v);
+    for (int o = 0; o < kOut; ++o) {
+      const V16 yo = splat(dy[static_cast<size_t>(s) * kOut + o]);
+      for (int v = 0; v < kV; ++v) acc[o][v] += hv[v] * yo;
+    }
+  }
+  for (int o = 0; o < kOut; ++o) {
+    for (int v = 0; v < kV; ++v) store(dWt + static_cast<size_t>(o) * kHidden + 16 * v, acc[o][v]);
+  }
+}
+
 }  // namespace evkit::nerf::small_layer
 
 #else
