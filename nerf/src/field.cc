@@ -108,7 +108,7 @@ class HashField final : public RadianceField<T> {
       : channels_(channels),
         grid_(c.grid, seed),
         mlp_({grid_.outputSize(), c.hidden, 1 + channels}, -1, seed + 1),
-        fast_layers_(EVKIT_SMALL_LAYER && std::is_same_v<T, float> && grid_.outputSize() == 32 && c.hidden == 64 && (channels == 1 || channels == 3)) {}
+        fast_layers_(EVKIT_SMALL_LAYER && c.kernels && std::is_same_v<T, float> && grid_.outputSize() == 32 && c.hidden == 64 && (channels == 1 || channels == 3)) {}
 
   std::string name() const override { return "hash"; }
   int channels() const override { return channels_; }

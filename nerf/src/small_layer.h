@@ -29,43 +29,50 @@ inline V16 splat(float x) { return V16{} + x; }
 // (a memory operand per FMA), and the kernels become bound by loads instead of FMAs.
 inline void pin(V16& v) { asm("" : "+v"(v)); }
 
-// Forward of a ReLU layer: h(:, s) = max(0, W x(:, s) + b), W hidden x inputs column-major, x
-// inputs x count column-major, h hidden x count column-major.
-template <int kHidden>
-void forwardRelu(const float* W, const float* b, int inputs, const float* x, int count, float* h) {
-  constexpr int kV = kHidden / 16;
+// A layer's matrix product, four samples at a time: out(:, s) = A in(:, s) (+ bias, then max(0, .)
+// when kRelu), A kRows x inner column-major, in inner x count and out kRows x count column-major;
+// bias may be null (zero).
+template <int kRows, bool kRelu>
+void product(const float* A, const float* bias, int inner, const float* in, int count, float* out) {
+  constexpr int kV = kRows / 16;
+  V16 init[kV];
+  for (int v = 0; v < kV; ++v) init[v] = bias ? load(bias + 16 * v) : V16{};
+  const auto finish = [](V16 a) { return kRelu ? (a > V16{} ? a : V16{}) : a; };
   int s = 0;
   for (; s + 4 <= count; s += 4) {
     V16 acc[4][kV];
-    for (int v = 0; v < kV; ++v) acc[0][v] = acc[1][v] = acc[2][v] = acc[3][v] = load(b + 16 * v);
-    const float* x0 = x + static_cast<size_t>(s) * inputs;
-    for (int k = 0; k < inputs; ++k) {
-      V16 w[kV];
+    for (int v = 0; v < kV; ++v) acc[0][v] = acc[1][v] = acc[2][v] = acc[3][v] = init[v];
+    const float* in0 = in + static_cast<size_t>(s) * inner;
+    for (int k = 0; k < inner; ++k) {
+      V16 a[kV];
       for (int v = 0; v < kV; ++v) {
-        w[v] = load(W + static_cast<size_t>(k) * kHidden + 16 * v);
-        pin(w[v]);
+        a[v] = load(A + static_cast<size_t>(k) * kRows + 16 * v);
+        pin(a[v]);
       }
       for (int i = 0; i < 4; ++i) {
-        const V16 xi = splat(x0[static_cast<size_t>(i) * inputs + k]);
-        for (int v = 0; v < kV; ++v) acc[i][v] += w[v] * xi;
+        const V16 xi = splat(in0[static_cast<size_t>(i) * inner + k]);
+        for (int v = 0; v < kV; ++v) acc[i][v] += a[v] * xi;
       }
     }
     for (int i = 0; i < 4; ++i) {
-      for (int v = 0; v < kV; ++v) {
-        const V16 a = acc[i][v];
-        store(h + static_cast<size_t>(s + i) * kHidden + 16 * v, a > V16{} ? a : V16{});
-      }
+      for (int v = 0; v < kV; ++v) store(out + static_cast<size_t>(s + i) * kRows + 16 * v, finish(acc[i][v]));
     }
   }
   for (; s < count; ++s) {
     V16 acc[kV];
-    for (int v = 0; v < kV; ++v) acc[v] = load(b + 16 * v);
-    for (int k = 0; k < inputs; ++k) {
-      const V16 xk = splat(x[static_cast<size_t>(s) * inputs + k]);
-      for (int v = 0; v < kV; ++v) acc[v] += load(W + static_cast<size_t>(k) * kHidden + 16 * v) * xk;
+    for (int v = 0; v < kV; ++v) acc[v] = init[v];
+    for (int k = 0; k < inner; ++k) {
+      const V16 xk = splat(in[static_cast<size_t>(s) * inner + k]);
+      for (int v = 0; v < kV; ++v) acc[v] += load(A + static_cast<size_t>(k) * kRows + 16 * v) * xk;
     }
-    for (int v = 0; v < kV; ++v) store(h + static_cast<size_t>(s) * kHidden + 16 * v, acc[v] > V16{} ? acc[v] : V16{});
+    for (int v = 0; v < kV; ++v) store(out + static_cast<size_t>(s) * kRows + 16 * v, finish(acc[v]));
   }
+}
+
+// Forward of a ReLU layer: h(:, s) = max(0, W x(:, s) + b), W hidden x inputs column-major.
+template <int kHidden>
+void forwardRelu(const float* W, const float* b, int inputs, const float* x, int count, float* h) {
+  product<kHidden, true>(W, b, inputs, x, count, h);
 }
 
 // Weight gradient: dW += dh x^T (dW hidden x inputs column-major, dh hidden x count, x inputs x
@@ -95,37 +102,10 @@ void weightGradient(const float* dh, const float* x, int inputs, int count, floa
 }
 
 // Input gradient: dx(:, s) = W^T dh(:, s), with Wt = W^T (inputs x hidden column-major, i.e. W's
-// rows contiguous); inputs a multiple of 16 (kIn); four samples at a time.
+// rows contiguous).
 template <int kIn>
 void inputGradient(const float* Wt, int hidden, const float* dh, int count, float* dx) {
-  constexpr int kV = kIn / 16;
-  int s = 0;
-  for (; s + 4 <= count; s += 4) {
-    V16 acc[4][kV] = {};
-    const float* d0 = dh + static_cast<size_t>(s) * hidden;
-    for (int j = 0; j < hidden; ++j) {
-      V16 w[kV];
-      for (int v = 0; v < kV; ++v) {
-        w[v] = load(Wt + static_cast<size_t>(j) * kIn + 16 * v);
-        pin(w[v]);
-      }
-      for (int i = 0; i < 4; ++i) {
-        const V16 di = splat(d0[static_cast<size_t>(i) * hidden + j]);
-        for (int v = 0; v < kV; ++v) acc[i][v] += w[v] * di;
-      }
-    }
-    for (int i = 0; i < 4; ++i) {
-      for (int v = 0; v < kV; ++v) store(dx + static_cast<size_t>(s + i) * kIn + 16 * v, acc[i][v]);
-    }
-  }
-  for (; s < count; ++s) {
-    V16 acc[kV] = {};
-    for (int j = 0; j < hidden; ++j) {
-      const V16 dj = splat(dh[static_cast<size_t>(s) * hidden + j]);
-      for (int v = 0; v < kV; ++v) acc[v] += load(Wt + static_cast<size_t>(j) * kIn + 16 * v) * dj;
-    }
-    for (int v = 0; v < kV; ++v) store(dx + static_cast<size_t>(s) * kIn + 16 * v, acc[v]);
-  }
+  product<kIn, false>(Wt, nullptr, hidden, dh, count, dx);
 }
 
 // Back through a linear output layer (kOut outputs) and the ReLU before it: with Wt = W^T
