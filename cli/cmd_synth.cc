@@ -71,11 +71,11 @@ int runSynth(const Args& args) {
   so.rgbd_depth_scale = vm["depth-scale"].as<double>();
   const std::string out = vm["out"].as<std::string>();
 
-  const auto one = [&](const Scene& scene, const std::string& dir, const std::string& name) {
+  const auto one = [](const Scene& scene, const SynthOptions& options, const std::string& dir, const std::string& name) {
     const auto start = std::chrono::steady_clock::now();
-    const SynthReport r = writeObservation(scene, o, dir);
+    const SynthReport r = writeObservation(scene, options, dir);
     const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    std::fprintf(stderr, "%-8s blur %5.1f px  %9s events  %5lld renders  %5.1f s  -> %s\n", name.c_str(), r.blur_px,
+    std::fprintf(stderr, "%-18s blur %5.1f px  %9s events  %5lld renders  %5.1f s  -> %s\n", name.c_str(), r.blur_px,
                  withThousands(r.events).c_str(), static_cast<long long>(r.renders), s, dir.c_str());
   };
   if (vm.count("suite")) {
@@ -88,9 +88,7 @@ int runSynth(const Args& args) {
     for (const SuiteEntry& e : entries) {
       SynthOptions entry = o;
       e.apply(entry);
-      const SynthReport r = writeObservation(makePreset(e.scene, so), entry, out + "/" + e.name);
-      std::fprintf(stderr, "%-18s blur %5.1f px  %9s events  -> %s/%s\n", e.name.c_str(), r.blur_px, withThousands(r.events).c_str(),
-                   out.c_str(), e.name.c_str());
+      one(makePreset(e.scene, so), entry, out + "/" + e.name, e.name);
     }
     return kExitOk;
   }
@@ -102,9 +100,9 @@ int runSynth(const Args& args) {
       if (std::string(e.what()).rfind("unknown preset", 0) == 0) throw UsageError(std::string("--preset: ") + e.what());
       throw;
     }
-    one(scene, out, vm["preset"].as<std::string>());
+    one(scene, o, out, vm["preset"].as<std::string>());
   } else {
-    one(loadScene(vm["scene"].as<std::string>(), so), out, "scene");
+    one(loadScene(vm["scene"].as<std::string>(), so), o, out, "scene");
   }
   return kExitOk;
 }
