@@ -153,6 +153,7 @@ class HashField final : public RadianceField<T> {
     d_features_.resize(static_cast<size_t>(features_.size()));
     // Parameter gradients per thread, added in thread order (the same sums for a thread count).
     const size_t threads = static_cast<size_t>(omp_get_max_threads());
+    // (The kernels accumulate the output weights' gradient transposed, in dw1t.)
     std::vector<Matrix> dw0(threads), dw1(threads), dw1t(threads), db0(threads), db1(threads);
     const Matrix w0t = w0.transpose(), w1t = w1.transpose();
 #pragma omp parallel
@@ -190,7 +191,7 @@ class HashField final : public RadianceField<T> {
 #endif
         if (!fast_layers_) {
           dw1[t].noalias() += d_out * hidden.transpose();
-          d_hidden.noalias() = w1.transpose() * d_out;
+          d_hidden.noalias() = w1t * d_out;
           d_hidden = (hidden.array() > T(0)).select(d_hidden, T(0));  // ReLU
           db0[t] += d_hidden.rowwise().sum();
           dw0[t].noalias() += d_hidden * x.transpose();
@@ -223,7 +224,6 @@ class HashField final : public RadianceField<T> {
 
  private:
   static constexpr Eigen::Index kBlock = 256;
-
 
   // d features of samples [begin, begin + count) into the level-major layout of the grid's backward.
   void scatter(Eigen::Index begin, Eigen::Index count, const Matrix& d_x) {
