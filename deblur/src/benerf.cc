@@ -780,6 +780,7 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
       o.knot_lr = number(key, value);
     } else if (key == "lr_final") {
       o.lr_final = number(key, value);
+      if (!(o.lr_final > 0)) throw Error("benerf: setting lr_final=" + value + " must be positive (the fraction the learning rates decay to)");
     } else if (key == "seed") {
       o.seed = static_cast<uint64_t>(settingInt(key, value, 0));
     } else if (key == "threads") {
