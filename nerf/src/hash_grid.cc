@@ -41,32 +41,46 @@ constexpr int kChunk = 64;  // samples whose corners and weights are computed to
 template <typename T>
 struct LevelChunk {
   uint32_t idx[8][kChunk];
+  T w[8][kChunk];  // trilinear weights
   T f[3][kChunk];  // fractional position in the cell
 
   void compute(const T* px, const T* py, const T* pz, int count, int res, bool dense, uint32_t mask) {
     const T scale = T(res);
     const int last = res - 1;
-    const uint32_t side = static_cast<uint32_t>(res) + 1;
+    const T* p[3] = {px, py, pz};
+    uint32_t cell[3][kChunk];
+    // Separate simple loops over samples, each vectorised.
+    for (int a = 0; a < 3; ++a) {
+      const T* pa = p[a];
+      T* fa = f[a];
+      uint32_t* ca = cell[a];
+      for (int k = 0; k < count; ++k) {
+        const T q = pa[k] * scale;  // p is clamped to [0, 1]
+        const int i = std::min(static_cast<int>(q), last);
+        fa[k] = q - static_cast<T>(i);
+        ca[k] = static_cast<uint32_t>(i);
+      }
+    }
     for (int k = 0; k < count; ++k) {
-      const T qx = px[k] * scale, qy = py[k] * scale, qz = pz[k] * scale;  // p is clamped to [0, 1]
-      const int ix = std::min(static_cast<int>(qx), last), iy = std::min(static_cast<int>(qy), last),
-                iz = std::min(static_cast<int>(qz), last);
-      f[0][k] = qx - T(ix), f[1][k] = qy - T(iy), f[2][k] = qz - T(iz);
-      const uint32_t x = static_cast<uint32_t>(ix), y = static_cast<uint32_t>(iy), z = static_cast<uint32_t>(iz);
-      uint32_t hx[2], hy[2], hz[2];
-      if (dense) {
-        hx[0] = x, hx[1] = x + 1, hy[0] = y * side, hy[1] = (y + 1) * side, hz[0] = z * side * side, hz[1] = (z + 1) * side * side;
+      const T fx = f[0][k], fy = f[1][k], fz = f[2][k];
+      const T wx[2] = {T(1) - fx, fx}, wy[2] = {T(1) - fy, fy}, wz[2] = {T(1) - fz, fz};
+      for (int c = 0; c < 8; ++c) w[c][k] = wx[c & 1] * wy[(c >> 1) & 1] * wz[c >> 2];
+    }
+    if (dense) {
+      const uint32_t side = static_cast<uint32_t>(res) + 1;
+      for (int k = 0; k < count; ++k) {
+        const uint32_t x = cell[0][k], y = cell[1][k] * side, z = cell[2][k] * side * side;
+        const uint32_t hx[2] = {x, x + 1}, hy[2] = {y, y + side}, hz[2] = {z, z + side * side};
         for (int c = 0; c < 8; ++c) idx[c][k] = hx[c & 1] + hy[(c >> 1) & 1] + hz[c >> 2];
-      } else {
-        // The spatial hash; its low bits are those of 32-bit products.
-        hx[0] = x, hx[1] = x + 1, hy[0] = y * 2654435761u, hy[1] = (y + 1) * 2654435761u, hz[0] = z * 805459861u,
-        hz[1] = (z + 1) * 805459861u;
+      }
+    } else {
+      // The spatial hash; its low bits are those of 32-bit products.
+      for (int k = 0; k < count; ++k) {
+        const uint32_t x = cell[0][k], y = cell[1][k] * 2654435761u, z = cell[2][k] * 805459861u;
+        const uint32_t hx[2] = {x, x + 1}, hy[2] = {y, y + 2654435761u}, hz[2] = {z, z + 805459861u};
         for (int c = 0; c < 8; ++c) idx[c][k] = (hx[c & 1] ^ hy[(c >> 1) & 1] ^ hz[c >> 2]) & mask;
       }
     }
-  }
-  T weight(int c, int k) const {
-    return (c & 1 ? f[0][k] : T(1) - f[0][k]) * ((c >> 1) & 1 ? f[1][k] : T(1) - f[1][k]) * (c >> 2 ? f[2][k] : T(1) - f[2][k]);
   }
 };
 
@@ -83,7 +97,7 @@ void encodeLevel(const T* const* p, Eigen::Index n, int res, bool dense, uint32_
     for (int k = 0; k < count; ++k) {
       T acc[F > 0 ? F : 16] = {};
       for (int c = 0; c < 8; ++c) {
-        const T w = chunk.weight(c, k);
+        const T w = chunk.w[c][k];
         const T* feat = slice + static_cast<size_t>(chunk.idx[c][k]) * static_cast<size_t>(nf);
         for (int j = 0; j < nf; ++j) acc[j] += w * feat[j];
       }
@@ -94,68 +108,59 @@ void encodeLevel(const T* const* p, Eigen::Index n, int res, bool dense, uint32_
 }
 
 // Backward of one level: scatters g (k F + j) into the level's gradient slice, marks touched
-// entries, and adds d(sum g . features)/d(position) (in grid units times res) into dp (3 x n,
-// masked by `inside`).
+// entries, and adds d(sum g . features)/d(position) (in grid units times res) into dp (n x 3, one
+// array per axis, masked by `inside`).
 template <int F, typename T>
 void encodeLevelBackward(const T* const* p, Eigen::Index n, int res, bool dense, uint32_t mask, const T* slice, int features, const T* g,
                          T* grad, uint8_t* touched, const uint8_t* inside, T* dp) {
   const int nf = F > 0 ? F : features;
   const T scale = T(res);
-  // Consecutive samples of a ray mostly share a cell: each corner's gradient is summed in a
-  // register while its entry stays the same, and written once when it changes (instead of a
-  // read-modify-write chain through memory per sample).
-  using Vec = Eigen::Array<T, (F > 0 ? F : 1), 1>;
-  constexpr uint32_t kNone = ~uint32_t{0};
-  uint32_t pending_entry[8];
-  Vec pending[8];
-  std::fill(pending_entry, pending_entry + 8, kNone);
-  const auto flush = [&](int c) {
-    if (pending_entry[c] == kNone) return;
-    Eigen::Map<Vec>(grad + static_cast<size_t>(pending_entry[c]) * static_cast<size_t>(nf)) += pending[c];
-    touched[pending_entry[c]] = 1;
-  };
   LevelChunk<T> chunk;
+  T dot[8][kChunk];  // g . features of each corner
   for (Eigen::Index begin = 0; begin < n; begin += kChunk) {
     const int count = static_cast<int>(std::min<Eigen::Index>(kChunk, n - begin));
     chunk.compute(p[0] + begin, p[1] + begin, p[2] + begin, count, res, dense, mask);
+    // The scatter: a read-modify-write per corner (entries repeat, so it stays scalar over samples).
     for (int k = 0; k < count; ++k) {
       const T* gk = g + (begin + k) * nf;
-      T dot[8];
       for (int c = 0; c < 8; ++c) {
-        const T w = chunk.weight(c, k);
+        const T w = chunk.w[c][k];
         const uint32_t e = chunk.idx[c][k];
         const T* feat = slice + static_cast<size_t>(e) * static_cast<size_t>(nf);
+        T* ge = grad + static_cast<size_t>(e) * static_cast<size_t>(nf);
         if constexpr (F > 0) {
+          using Vec = Eigen::Array<T, F, 1>;
           const Eigen::Map<const Vec> gv(gk);
-          Eigen::Map<Vec>(grad + static_cast<size_t>(e) * static_cast<size_t>(nf)) += w * gv;
-          touched[e] = 1;
-          dot[c] = (gv * Eigen::Map<const Vec>(feat)).sum();
+          dot[c][k] = (gv * Eigen::Map<const Vec>(feat)).sum();
+          Eigen::Map<Vec>(ge) += w * gv;
         } else {
-          T* ge = grad + static_cast<size_t>(e) * static_cast<size_t>(nf);
           T d = 0;
           for (int j = 0; j < nf; ++j) {
-            ge[j] += w * gk[j];
             d += gk[j] * feat[j];
+            ge[j] += w * gk[j];
           }
-          dot[c] = d;
-          touched[e] = 1;
+          dot[c][k] = d;
         }
+        touched[e] = 1;
       }
-      // d/df of the trilinear sum: differences of the dots along each axis, weighted by the other two.
-      const T fx = chunk.f[0][k], fy = chunk.f[1][k], fz = chunk.f[2][k];
-      const T gx = fx, hx = T(1) - fx, gy = fy, hy = T(1) - fy, gz = fz, hz = T(1) - fz;
-      const T ddx = hy * hz * (dot[1] - dot[0]) + gy * hz * (dot[3] - dot[2]) + hy * gz * (dot[5] - dot[4]) + gy * gz * (dot[7] - dot[6]);
-      const T ddy = hx * hz * (dot[2] - dot[0]) + gx * hz * (dot[3] - dot[1]) + hx * gz * (dot[6] - dot[4]) + gx * gz * (dot[7] - dot[5]);
-      const T ddz = hx * hy * (dot[4] - dot[0]) + gx * hy * (dot[5] - dot[1]) + hx * gy * (dot[6] - dot[2]) + gx * gy * (dot[7] - dot[3]);
-      const uint8_t in = inside[begin + k];
-      T* d = dp + 3 * (begin + k);
-      if (in & 1) d[0] += ddx * scale;
-      if (in & 2) d[1] += ddy * scale;
-      if (in & 4) d[2] += ddz * scale;
     }
-  }
-  if constexpr (F > 0) {
-    for (int c = 0; c < 8; ++c) flush(c);
+    // d/df of the trilinear sum: differences of the dots along each axis, weighted by the other
+    // two (vectorised over samples).
+    T* dx = dp + begin;
+    T* dy = dp + n + begin;
+    T* dz = dp + 2 * n + begin;
+    const uint8_t* in = inside + begin;
+    for (int k = 0; k < count; ++k) {
+      const T gx = chunk.f[0][k], hx = T(1) - gx, gy = chunk.f[1][k], hy = T(1) - gy, gz = chunk.f[2][k], hz = T(1) - gz;
+      const T d0 = dot[0][k], d1 = dot[1][k], d2 = dot[2][k], d3 = dot[3][k], d4 = dot[4][k], d5 = dot[5][k], d6 = dot[6][k],
+              d7 = dot[7][k];
+      const T ddx = hy * hz * (d1 - d0) + gy * hz * (d3 - d2) + hy * gz * (d5 - d4) + gy * gz * (d7 - d6);
+      const T ddy = hx * hz * (d2 - d0) + gx * hz * (d3 - d1) + hx * gz * (d6 - d4) + gx * gz * (d7 - d5);
+      const T ddz = hx * hy * (d4 - d0) + gx * hy * (d5 - d1) + hx * gy * (d6 - d2) + gx * gy * (d7 - d3);
+      dx[k] += (in[k] & 1) ? ddx * scale : T(0);
+      dy[k] += (in[k] & 2) ? ddy * scale : T(0);
+      dz[k] += (in[k] & 4) ? ddz * scale : T(0);
+    }
   }
 }
 
@@ -208,7 +213,7 @@ typename HashGrid<T>::Matrix HashGrid<T>::backwardLevelMajor(const T* d_features
 #pragma omp parallel
   {
     Matrix& local = partial[static_cast<size_t>(omp_get_thread_num())];
-    local = Matrix::Zero(3, n);
+    local = Matrix::Zero(n, 3);  // one array per axis
 #pragma omp for schedule(static, 1)
     for (int l = 0; l < config_.levels; ++l) {
       const int res = resolution_[static_cast<size_t>(l)];
@@ -226,11 +231,11 @@ typename HashGrid<T>::Matrix HashGrid<T>::backwardLevelMajor(const T* d_features
       }
     }
   }
-  Matrix d_positions = Matrix::Zero(3, n);
+  Matrix d_positions = Matrix::Zero(n, 3);
   for (const Matrix& local : partial) {
     if (local.size()) d_positions += local;
   }
-  return d_positions;
+  return d_positions.transpose();
 }
 
 template <typename T>
