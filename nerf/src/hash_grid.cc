@@ -169,16 +169,17 @@ void encodeLevelBackward(const T* const* p, Eigen::Index n, int res, bool dense,
 template <typename T>
 void HashGrid<T>::setPositions(const Matrix& positions) {
   const Eigen::Index n = positions.cols();
-  positions_.resize(n, 3);  // structure of arrays: one column per axis
-  inside_.resize(static_cast<size_t>(n));
-  for (Eigen::Index k = 0; k < n; ++k) {
-    uint8_t mask = 0;
-    for (int a = 0; a < 3; ++a) {
-      const T v = positions(a, k);
-      mask |= (v > T(0) && v < T(1)) ? uint8_t(1 << a) : uint8_t(0);
-      positions_(k, a) = std::clamp(v, T(0), T(1));
+  positions_ = positions.transpose();  // structure of arrays: one column per axis
+  inside_.assign(static_cast<size_t>(n), 0);
+  uint8_t* inside = inside_.data();
+  for (int a = 0; a < 3; ++a) {  // one axis at a time: vectorised over samples
+    T* p = positions_.col(a).data();
+    const uint8_t bit = static_cast<uint8_t>(1 << a);
+    for (Eigen::Index k = 0; k < n; ++k) {
+      const T v = p[k];
+      inside[k] |= (v > T(0) && v < T(1)) ? bit : uint8_t(0);
+      p[k] = v < T(0) ? T(0) : (v > T(1) ? T(1) : v);
     }
-    inside_[static_cast<size_t>(k)] = mask;
   }
 }
 
@@ -266,15 +267,24 @@ typename HashGrid<T>::Matrix HashGrid<T>::backward(const Matrix& d_features) {
 
 template <typename T>
 void HashGrid<T>::zeroGradients() {
-  // Only touched entries carry gradient: clear those, not the whole table.
+  // Only touched entries carry gradient: clear those, not the whole table (a level that was mostly
+  // touched is cleared whole, which streams instead of skipping).
   const size_t F = static_cast<size_t>(config_.features);
 #pragma omp parallel for schedule(static, 1)
   for (int l = 0; l < config_.levels; ++l) {
-    for (size_t e = static_cast<size_t>(l) * entries_; e < static_cast<size_t>(l + 1) * entries_; ++e) {
-      if (!touched_[e]) continue;
-      std::fill(grad_.begin() + static_cast<std::ptrdiff_t>(e * F), grad_.begin() + static_cast<std::ptrdiff_t>((e + 1) * F), T(0));
-      touched_[e] = 0;
+    const size_t first = static_cast<size_t>(l) * entries_;
+    uint8_t* touched = touched_.data() + first;
+    T* grad = grad_.data() + first * F;
+    size_t count = 0;
+    for (size_t e = 0; e < entries_; ++e) count += touched[e];
+    if (count * 2 > entries_) {
+      std::fill(grad, grad + entries_ * F, T(0));
+    } else if (count > 0) {
+      for (size_t e = 0; e < entries_; ++e) {
+        if (touched[e]) std::fill(grad + e * F, grad + (e + 1) * F, T(0));
+      }
     }
+    std::fill(touched, touched + entries_, uint8_t(0));
   }
 }
 
