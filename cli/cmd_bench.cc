@@ -53,7 +53,7 @@ Observation suiteObservation(const synth::SuiteEntry& e, const std::string& data
 int runBench(const Args& args) {
   po::options_description opts("options");
   opts.add_options()("out", po::value<std::string>()->required(), "output folder: results.csv, results.md, speed_vs_error.png, runs/")(
-      "suite", po::value<std::string>()->default_value("standard"), "standard (10 scenes), hard (9 hard cases) or all")(
+      "suite", po::value<std::string>()->default_value("standard"), "standard (10 scenes), noisy (the same 10 with DAVIS-like event noise), hard (9 hard cases) or all")(
       "scenes", po::value<std::string>(), "only these entries of the suite (comma-separated names)")(
       "data", po::value<std::string>(), "where the suite's observation folders are (made when missing); default OUT/suite")(
       "size", po::value<std::string>()->default_value("346x260"), "image size of generated scenes WxH")(
@@ -66,7 +66,7 @@ int runBench(const Args& args) {
       "rerun", po::bool_switch(), "run again what OUT/results.csv already holds");
   po::positional_options_description pos;
   po::variables_map vm;
-  if (!parseArgs(args, "usage: evkit bench [--suite standard|hard|all] [--methods ...] [--budgets ...] --out DIR", opts, pos, vm)) {
+  if (!parseArgs(args, "usage: evkit bench [--suite standard|noisy|hard|all] [--methods ...] [--budgets ...] --out DIR", opts, pos, vm)) {
     return kExitOk;
   }
   const auto [width, height] = parseImageSize(vm["size"].as<std::string>(), "size", 16, 4096);

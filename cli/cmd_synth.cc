@@ -17,7 +17,7 @@ int runSynth(const Args& args) {
   po::options_description opts("options");
   opts.add_options()("preset", po::value<std::string>(), "planes, box, rgbd, ground, text or plain")(
       "scene", po::value<std::string>(), "scene description file (YAML or JSON; see the README)")(
-      "suite", po::value<std::string>(), "a named suite into OUT/<name>: standard (5 scenes x blur 15 and 40 px), hard (9 hard cases), all")(
+      "suite", po::value<std::string>(), "a named suite into OUT/<name>: standard (5 scenes x blur 15 and 40 px, noiseless events), noisy (the same with DAVIS-like event noise), hard (9 hard cases), all")(
       "out", po::value<std::string>()->required(), "output folder")(
       "size", po::value<std::string>()->default_value("346x260"), "image size WxH")(
       "blur-px", po::value<double>()->default_value(30), "blur length: the longest image path of a point (px)")(

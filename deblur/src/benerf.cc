@@ -760,6 +760,10 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
       o.event_form = number(key, value) != 0 ? BenerfOptions::EventForm::kNormalised : BenerfOptions::EventForm::kDirect;
     } else if (key == "rays") {
       o.blur_rays = o.event_rays = settingInt(key, value, 1);
+    } else if (key == "blur_rays") {
+      o.blur_rays = settingInt(key, value, 1);
+    } else if (key == "event_rays") {
+      o.event_rays = settingInt(key, value, 0);
     } else if (key == "samples") {
       o.samples = settingInt(key, value, 2);
     } else if (key == "levels") {
@@ -795,7 +799,7 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
       o.log.lin_log = number(key, value) != 0;
     } else {
       throw Error("benerf: unknown setting '" + key +
-                  "' (known: budget, preset, field, iterations, views, knots, trajectory, alpha, beta, normalise, rays, samples, levels, "
+                  "' (known: budget, preset, field, iterations, views, knots, trajectory, alpha, beta, normalise, rays, blur_rays, event_rays, samples, levels, "
                   "table, resolution, depth_scale, field_lr, knot_lr, seed, threads, checkpoint, resume, stop_after, lin_log)");
     }
   }

@@ -279,6 +279,8 @@ TEST(Cli, DeblurWithBenerfWritesFramesTrajectoryDisparityCurveAndCheckpoint) {
   // Mistakes: a bad budget or setting value is a usage error; a corrupt checkpoint one error line.
   EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --method benerf --set budget=slow --out " + (dir / "x"), dir).exit_code, 2);
   EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --method benerf --set alpha=2 --out " + (dir / "x"), dir).exit_code, 2);
+  EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --method benerf --set blur_rays=0 --out " + (dir / "x"), dir).exit_code, 2);
+  EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --method benerf --set event_rays=-1 --out " + (dir / "x"), dir).exit_code, 2);
   std::ofstream(dir / "bad.ckpt") << "EVKBNRF1 not really";
   r = runEvkit("deblur " + (dir / "obs") + " --method benerf --set resume=" + (dir / "bad.ckpt") + " --out " + (dir / "x"), dir);
   EXPECT_EQ(r.exit_code, 1);

@@ -152,7 +152,16 @@ TEST(Synth, RgbdPresetAndSceneFiles) {
   EXPECT_THROW(makePreset("nope", {}), Error);
   EXPECT_EQ(suiteEntries("standard").size(), 10u);
   EXPECT_EQ(suiteEntries("hard").size(), 9u);
-  EXPECT_EQ(suiteEntries("all").size(), 19u);
+  EXPECT_EQ(suiteEntries("all").size(), 29u);
+  const std::vector<SuiteEntry> noisy = suiteEntries("noisy");
+  ASSERT_EQ(noisy.size(), 10u);
+  EXPECT_EQ(noisy[0].name, "planes_blur15_noisy");
+  SynthOptions o;
+  noisy[0].apply(o);
+  EXPECT_DOUBLE_EQ(o.simulator.sigma, 0.03);
+  EXPECT_DOUBLE_EQ(o.simulator.shot_noise_rate_hz, 1.0);
+  EXPECT_DOUBLE_EQ(o.simulator.leak_rate_hz, 0.1);
+  EXPECT_DOUBLE_EQ(o.shake.blur_px, 15.0);
   EXPECT_THROW(suiteEntries("easy"), Error);
 }
 

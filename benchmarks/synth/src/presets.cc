@@ -222,7 +222,7 @@ void SuiteEntry::apply(SynthOptions& o) const {
   o.simulator.leak_rate_hz = leak_hz;
 }
 
-std::vector<std::string> suiteNames() { return {"standard", "hard", "all"}; }
+std::vector<std::string> suiteNames() { return {"standard", "noisy", "hard", "all"}; }
 
 std::vector<SuiteEntry> suiteEntries(const std::string& suite) {
   std::vector<SuiteEntry> entries;
@@ -235,6 +235,24 @@ std::vector<SuiteEntry> suiteEntries(const std::string& suite) {
         e.group = "standard";
         e.scene = scene;
         e.blur_px = blur;
+        entries.push_back(e);
+      }
+    }
+  }
+  if (suite == "noisy" || suite == "all") {
+    // The standard scenes with DAVIS-like event noise (v2e's default threshold mismatch).
+    for (const std::string& scene : presetNames()) {
+      if (scene == "plain") continue;
+      for (double blur : {15.0, 40.0}) {
+        SuiteEntry e;
+        e.name = scene + "_blur" + std::to_string(static_cast<int>(blur)) + "_noisy";
+        e.group = "noisy";
+        e.scene = scene;
+        e.blur_px = blur;
+        e.what = "threshold mismatch 0.03, shot noise 1 Hz, leak 0.1 Hz per pixel";
+        e.sigma = 0.03;
+        e.shot_noise_hz = 1;
+        e.leak_hz = 0.1;
         entries.push_back(e);
       }
     }
@@ -263,7 +281,7 @@ std::vector<SuiteEntry> suiteEntries(const std::string& suite) {
     hard("dense", "planes", 40, "dense events: C = 0.08").contrast = 0.08;
     hard("noevents", "planes", 40, "no events in the exposure").drop_events = true;
   }
-  if (entries.empty()) throw Error("unknown suite '" + suite + "' (known: standard, hard, all)");
+  if (entries.empty()) throw Error("unknown suite '" + suite + "' (known: standard, noisy, hard, all)");
   return entries;
 }
 

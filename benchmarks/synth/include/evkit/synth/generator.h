@@ -103,13 +103,15 @@ SynthReport writeObservation(const Scene& scene, const SynthOptions& options, co
 
 // A named suite: observation folders <dir>/<name>.
 //  - standard: the 5 presets x blur {15, 40} px, noiseless events, C = 0.2 (<scene>_blur<px>);
+//  - noisy: the same 10 scenes with DAVIS-like event noise: per-pixel threshold mismatch 0.03,
+//    shot noise 1 Hz, leak 0.1 Hz per pixel (<scene>_blur<px>_noisy);
 //  - hard: one hard case each (hard_<case>): blur 70 px, blur 2 px, texture-less, saturated
 //    highlights, a very dark scene, noisy events (mismatch, shot noise, leak), sparse events
 //    (C = 0.5), dense events (C = 0.08), an exposure without events;
-//  - all: both.
+//  - all: every one of them.
 struct SuiteEntry {
   std::string name;   // folder name
-  std::string group;  // "standard" or "hard"
+  std::string group;  // "standard", "noisy" or "hard"
   std::string scene;  // preset
   double blur_px = 30;
   std::string what;   // what makes it hard (empty for standard entries)
