@@ -222,39 +222,42 @@ void SuiteEntry::apply(SynthOptions& o) const {
   o.simulator.leak_rate_hz = leak_hz;
 }
 
+namespace {
+
+// The presets but `plain`, each at blur 15 and 40 px: <scene>_blur<px><suffix>.
+std::vector<SuiteEntry> sceneGrid(const std::string& group, const std::string& suffix) {
+  std::vector<SuiteEntry> entries;
+  for (const std::string& scene : presetNames()) {
+    if (scene == "plain") continue;
+    for (double blur : {15.0, 40.0}) {
+      SuiteEntry e;
+      e.name = scene + "_blur" + std::to_string(static_cast<int>(blur)) + suffix;
+      e.group = group;
+      e.scene = scene;
+      e.blur_px = blur;
+      entries.push_back(e);
+    }
+  }
+  return entries;
+}
+
+}  // namespace
+
 std::vector<std::string> suiteNames() { return {"standard", "noisy", "hard", "all"}; }
 
 std::vector<SuiteEntry> suiteEntries(const std::string& suite) {
   std::vector<SuiteEntry> entries;
   if (suite == "standard" || suite == "all") {
-    for (const std::string& scene : presetNames()) {
-      if (scene == "plain") continue;
-      for (double blur : {15.0, 40.0}) {
-        SuiteEntry e;
-        e.name = scene + "_blur" + std::to_string(static_cast<int>(blur));
-        e.group = "standard";
-        e.scene = scene;
-        e.blur_px = blur;
-        entries.push_back(e);
-      }
-    }
+    for (const SuiteEntry& e : sceneGrid("standard", "")) entries.push_back(e);
   }
   if (suite == "noisy" || suite == "all") {
     // The standard scenes with DAVIS-like event noise (v2e's default threshold mismatch).
-    for (const std::string& scene : presetNames()) {
-      if (scene == "plain") continue;
-      for (double blur : {15.0, 40.0}) {
-        SuiteEntry e;
-        e.name = scene + "_blur" + std::to_string(static_cast<int>(blur)) + "_noisy";
-        e.group = "noisy";
-        e.scene = scene;
-        e.blur_px = blur;
-        e.what = "threshold mismatch 0.03, shot noise 1 Hz, leak 0.1 Hz per pixel";
-        e.sigma = 0.03;
-        e.shot_noise_hz = 1;
-        e.leak_hz = 0.1;
-        entries.push_back(e);
-      }
+    for (SuiteEntry e : sceneGrid("noisy", "_noisy")) {
+      e.what = "threshold mismatch 0.03, shot noise 1 Hz, leak 0.1 Hz per pixel";
+      e.sigma = 0.03;
+      e.shot_noise_hz = 1;
+      e.leak_hz = 0.1;
+      entries.push_back(e);
     }
   }
   if (suite == "hard" || suite == "all") {
