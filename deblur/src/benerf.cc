@@ -800,7 +800,7 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
     } else {
       throw Error("benerf: unknown setting '" + key +
                   "' (known: budget, preset, field, iterations, views, knots, trajectory, alpha, beta, normalise, rays, blur_rays, event_rays, samples, levels, "
-                  "table, resolution, depth_scale, field_lr, knot_lr, seed, threads, checkpoint, resume, stop_after, lin_log)");
+                  "features, table, resolution, depth_scale, field_lr, knot_lr, lr_final, seed, threads, checkpoint, resume, stop_after, lin_log)");
     }
   }
   if (o.field == "mlp" && !settings.count("field_lr")) o.field_lr = 5e-4;  // the paper's rate for its MLP

@@ -114,7 +114,7 @@ struct SuiteEntry {
   std::string group;  // "standard", "noisy" or "hard"
   std::string scene;  // preset
   double blur_px = 30;
-  std::string what;   // what makes it hard (empty for standard entries)
+  std::string what;   // what makes it hard or noisy (empty for standard entries)
   double gain = 1.0;
   double contrast = 0.2;
   double sigma = 0, shot_noise_hz = 0, leak_hz = 0;
