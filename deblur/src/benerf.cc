@@ -86,9 +86,9 @@ BenerfOptions benerfBudget(const std::string& name) {
   BenerfOptions o;
   if (name == "fast") {
     o.iterations = 1000;
-    o.blur_rays = 1024;
-    o.event_rays = 1024;
-    o.samples = 16;
+    o.blur_rays = 2048;
+    o.event_rays = 2048;
+    o.samples = 8;
     o.hash.grid.levels = 8;
     o.hash.grid.log2_table = 15;
   } else if (name == "balanced") {
@@ -619,7 +619,12 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
   double curve_seconds = 0;  // spent on the training-PSNR renders
   double loss_sum = 0;
   int loss_count = 0;
+  const int bands = problem.field().bands();
   for (int it = first; it < iterations; ++it) {
+    if (o.coarse_to_fine > 0) {
+      const double opened = std::clamp(static_cast<double>(it) / (o.coarse_to_fine * iterations), 0.0, 1.0);
+      problem.field().setBandLimit(1 + (bands - 2) * opened);
+    }
     const auto batch = problem.sampleBatch(rng);
     const auto loss = problem.evaluate(batch, &knot_gradient);
     if (!std::isfinite(loss.total) || !knot_gradient.allFinite()) {
@@ -664,6 +669,7 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
     if (stop) break;
   }
   result.timings_s["train"] = secondsSince(train_start);
+  problem.field().setBandLimit(bands);
 
   const auto render_start = std::chrono::steady_clock::now();
   for (int64_t t : request.times_us) {
@@ -778,6 +784,9 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
       if (!(o.depth_scale > 0 && o.depth_scale <= 1)) throw Error("benerf: depth_scale must lie in (0, 1]");
     } else if (key == "resolution") {
       o.finest_resolution = settingInt(key, value, 2);
+    } else if (key == "coarse_to_fine") {
+      o.coarse_to_fine = number(key, value);
+      if (!(o.coarse_to_fine >= 0 && o.coarse_to_fine <= 1)) throw Error("benerf: coarse_to_fine must lie in [0, 1] (the fraction of the iterations over which the field's bands open)");
     } else if (key == "field_lr") {
       o.field_lr = number(key, value);
     } else if (key == "knot_lr") {
@@ -800,7 +809,7 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
     } else {
       throw Error("benerf: unknown setting '" + key +
                   "' (known: budget, preset, field, iterations, views, knots, trajectory, alpha, beta, normalise, rays, blur_rays, event_rays, samples, levels, "
-                  "features, table, resolution, depth_scale, field_lr, knot_lr, lr_final, seed, threads, checkpoint, resume, stop_after, lin_log)");
+                  "features, table, resolution, depth_scale, coarse_to_fine, field_lr, knot_lr, lr_final, seed, threads, checkpoint, resume, stop_after, lin_log)");
     }
   }
   if (o.field == "mlp" && !settings.count("field_lr")) o.field_lr = 5e-4;  // the paper's rate for its MLP

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <numbers>
 #include <type_traits>
 
 #include "small_layer.h"
@@ -31,6 +32,17 @@ void activationBackward(const Eigen::MatrixBase<A>& out, const Eigen::MatrixBase
   d_raw.bottomRows(c) = (d_out.bottomRows(c).array() * out.bottomRows(c).array() * (T(1) - out.bottomRows(c).array())).matrix();
 }
 
+// BARF's window: band 0 always, band b at (1 - cos(pi f)) / 2 with f = clamp(bands - (b - 1), 0, 1).
+template <typename T>
+std::vector<T> bandWeights(double bands, int count) {
+  std::vector<T> w(static_cast<size_t>(count), T(1));
+  for (int b = 1; b < count; ++b) {
+    const double f = std::clamp(bands - (b - 1), 0.0, 1.0);
+    w[static_cast<size_t>(b)] = static_cast<T>(0.5 * (1 - std::cos(std::numbers::pi * f)));
+  }
+  return w;
+}
+
 template <typename T>
 void appendMlp(Mlp<T>& mlp, std::vector<ParameterBlock<T>>& blocks) {
   for (size_t l = 0; l < mlp.weights().size(); ++l) {
@@ -54,7 +66,9 @@ class MlpField final : public RadianceField<T> {
 
   Matrix forward(const Matrix& positions) override {
     positions_ = positions;
-    const Matrix features = trunk_.forward(positionalEncoding(positions, config_.frequencies));  // (1 + width) x N
+    Matrix encoded = positionalEncoding(positions, config_.frequencies);
+    weightBands(encoded);
+    const Matrix features = trunk_.forward(encoded);  // (1 + width) x N
     Matrix out(1 + channels_, positions.cols());
     out.row(0) = features.row(0);
     out.bottomRows(channels_) = head_.forward(features.bottomRows(config_.width));
@@ -69,7 +83,9 @@ class MlpField final : public RadianceField<T> {
     Matrix d_features(1 + config_.width, d_raw.cols());
     d_features.row(0) = d_raw.row(0);
     d_features.bottomRows(config_.width) = head_.backward(d_raw.bottomRows(channels_));
-    return positionalEncodingBackward(positions_, config_.frequencies, trunk_.backward(d_features));
+    Matrix d_encoded = trunk_.backward(d_features);
+    weightBands(d_encoded);
+    return positionalEncodingBackward(positions_, config_.frequencies, d_encoded);
   }
 
   std::vector<ParameterBlock<T>> parameters() override {
@@ -82,6 +98,9 @@ class MlpField final : public RadianceField<T> {
     trunk_.zeroGradients();
     head_.zeroGradients();
   }
+  // Band 0: the raw position; band k + 1: frequency 2^k pi.
+  int bands() const override { return 1 + config_.frequencies; }
+  void setBandLimit(double bands) override { band_weight_ = bandWeights<T>(bands, 1 + config_.frequencies); }
 
  private:
   static std::vector<int> trunkWidths(const MlpFieldConfig& c) {
@@ -90,8 +109,17 @@ class MlpField final : public RadianceField<T> {
     w.push_back(1 + c.width);  // density + features for the colour head
     return w;
   }
+  // Scales the sine and cosine rows of each frequency by its band's weight (a no-op at full band).
+  void weightBands(Matrix& encoded) const {
+    const Eigen::Index d = positions_.rows();
+    for (int k = 0; k < config_.frequencies; ++k) {
+      const T w = band_weight_.empty() ? T(1) : band_weight_[static_cast<size_t>(k + 1)];
+      if (w != T(1)) encoded.middleRows(d * (1 + 2 * k), 2 * d) *= w;
+    }
+  }
   MlpFieldConfig config_;
   int channels_;
+  std::vector<T> band_weight_;  // empty: every band at weight 1
   Mlp<T> trunk_, head_;
   Matrix positions_, out_;
 };
@@ -128,6 +156,9 @@ class HashField final : public RadianceField<T> {
       const Eigen::Index count = std::min(kBlock, n - begin);
       auto x = features_.middleCols(begin, count);
       grid_.encode(begin, count, x.data(), x.rows());
+      if (band_limited_) {
+        for (int l = 0; l < grid_.config().levels; ++l) x.middleRows(l * grid_.config().features, grid_.config().features) *= level_weight_[static_cast<size_t>(l)];
+      }
       auto hidden = hidden_.middleCols(begin, count);
 #if EVKIT_SMALL_LAYER
       if constexpr (std::is_same_v<T, float>) {
@@ -221,6 +252,11 @@ class HashField final : public RadianceField<T> {
     grid_.zeroGradients();
     mlp_.zeroGradients();
   }
+  int bands() const override { return grid_.config().levels; }
+  void setBandLimit(double bands) override {
+    level_weight_ = bandWeights<T>(bands, grid_.config().levels);
+    band_limited_ = std::any_of(level_weight_.begin(), level_weight_.end(), [](T w) { return w != T(1); });
+  }
 
  private:
   static constexpr Eigen::Index kBlock = 256;
@@ -232,6 +268,9 @@ class HashField final : public RadianceField<T> {
       T* dst = d_features_.data() + (l * n + begin) * F;
       for (Eigen::Index k = 0; k < count; ++k) {
         for (Eigen::Index c = 0; c < F; ++c) dst[k * F + c] = d_x(l * F + c, k);
+      }
+      if (band_limited_) {
+        for (Eigen::Index k = 0; k < count * F; ++k) dst[k] *= level_weight_[static_cast<size_t>(l)];
       }
     }
   }
@@ -245,6 +284,8 @@ class HashField final : public RadianceField<T> {
   // The register-blocked kernels (small_layer.h; AVX-512 targets) for the common shape in float: 32
   // encoded features (8 x 4, 16 x 2) into 64 hidden units, grey or colour; Eigen's products otherwise.
   bool fast_layers_;
+  bool band_limited_ = false;
+  std::vector<T> level_weight_;
 };
 
 }  // namespace

@@ -211,6 +211,53 @@ TEST(Fields, BackwardOfBothFieldsAgainstCentralDifferences) {
   checkField(*hash, "hash field");
 }
 
+// Coarse to fine: a partly open band limit is part of the function, so the gradients still match
+// central differences; a closed band has no effect on the output and gets no gradient; a fully open
+// one is the plain field.
+TEST(Fields, BandLimitWeightsTheEncodingAndItsGradients) {
+  MlpFieldConfig mc;
+  mc.frequencies = 3;
+  mc.depth = 3;
+  mc.width = 8;
+  mc.skip = 2;
+  mc.colour_width = 6;
+  auto mlp = makeMlpField<double>(mc, 3, 1);
+  EXPECT_EQ(mlp->bands(), 4);
+  mlp->setBandLimit(1.5);
+  checkField(*mlp, "band-limited mlp field");
+  HashFieldConfig hc;
+  hc.grid.levels = 3;
+  hc.grid.features = 2;
+  hc.grid.log2_table = 8;
+  hc.grid.base_resolution = 4;
+  hc.hidden = 8;
+  auto hash = makeHashField<double>(hc, 1, 2);
+  EXPECT_EQ(hash->bands(), 3);
+  ParameterBlock<double> table = hash->parameters().front();
+  for (size_t i = 0; i < table.size; ++i) table.values[i] *= 1e4;
+  const MatrixD p = MatrixD::Random(3, 16) * 0.8;
+  const MatrixD full = hash->forward(p);
+  hash->setBandLimit(0.5);
+  checkField(*hash, "band-limited hash field");
+  const MatrixD half = hash->forward(p);
+  EXPECT_GT((half - full).cwiseAbs().maxCoeff(), 1e-3) << "the band limit must change the output";
+  // Closed: the finest level's entries neither change the output nor get gradients.
+  hash->setBandLimit(0.0);
+  const MatrixD coarse = hash->forward(p);
+  const size_t finest = 2 * (size_t{1} << hc.grid.log2_table) * hc.grid.features;
+  for (size_t i = finest; i < table.size; ++i) table.values[i] += 0.5;
+  EXPECT_EQ((hash->forward(p) - coarse).cwiseAbs().maxCoeff(), 0.0);
+  hash->zeroGradients();
+  hash->forward(p);
+  hash->backward(MatrixD::Ones(2, 16));
+  double finest_gradient = 0;
+  for (size_t i = finest; i < table.size; ++i) finest_gradient = std::max(finest_gradient, std::abs(table.gradients[i]));
+  EXPECT_EQ(finest_gradient, 0.0);
+  for (size_t i = finest; i < table.size; ++i) table.values[i] -= 0.5;
+  hash->setBandLimit(hash->bands());
+  EXPECT_LT((hash->forward(p) - full).cwiseAbs().maxCoeff(), 1e-12);
+}
+
 // The float hash field runs its MLP through register-blocked kernels (32 features into 64 hidden
 // units) where the target has AVX-512; Eigen's products (the path checked above against central
 // differences, in double) are the reference: the same parameters and inputs must give the same

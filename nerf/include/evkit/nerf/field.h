@@ -44,6 +44,11 @@ class RadianceField {
   virtual Matrix backward(const Matrix& d_outputs) = 0;
   virtual std::vector<ParameterBlock<T>> parameters() = 0;
   virtual void zeroGradients() = 0;
+  // Coarse to fine (BARF, Lin et al., ICCV 2021): the encoding's bands are weighted by a window
+  // that opens with `bands` (0: the coarsest band only, >= the band count: all, the default);
+  // between integers the next band fades in as (1 - cos(pi f)) / 2.
+  virtual void setBandLimit(double bands) = 0;
+  virtual int bands() const = 0;
 };
 
 struct MlpFieldConfig {
