@@ -141,6 +141,99 @@ int virtualViewsFor(double blur_px) {
   return std::clamp(static_cast<int>(std::ceil(blur_px / 2.0)) + 1, 5, 19);
 }
 
+namespace {
+
+// The image of warped events for contrast maximisation: events as bearings (z = 1) and normalised
+// times about mid-exposure, voted bilinearly at their warped pixel.
+class WarpedEventImage {
+ public:
+  WarpedEventImage(const Observation& obs, const nerf::PinholeCamera& camera, size_t max_events) : camera_(camera) {
+    const EventSpan ev = obs.events.sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us + 1);
+    const double t_mid = 0.5 * static_cast<double>(obs.blurry.exposure_start_us + obs.blurry.exposure_end_us);
+    const double length = std::max<double>(1, static_cast<double>(obs.blurry.exposure_end_us - obs.blurry.exposure_start_us));
+    const size_t stride = std::max<size_t>(1, ev.size() / std::max<size_t>(1, max_events));
+    for (size_t i = 0; i < ev.size(); i += stride) {
+      if (ev.x[i] >= camera.width || ev.y[i] >= camera.height) continue;
+      bearings_.push_back(camera.direction(ev.x[i], ev.y[i]));
+      tau_.push_back((static_cast<double>(ev.t[i]) - t_mid) / length);
+    }
+  }
+  size_t size() const { return tau_.size(); }
+
+  // Variance of the image of the events warped by exp(omega tau) (first order: b + tau omega x b),
+  // smoothed by a Gaussian of sigma pixels.
+  double contrast(const Vector3& omega, double sigma) {
+    image_.create(camera_.height, camera_.width, CV_32F);
+    image_.setTo(0);
+    const int W = camera_.width, H = camera_.height;
+    for (size_t i = 0; i < tau_.size(); ++i) {
+      const Vector3& b = bearings_[i];
+      const Vector3 d = b + tau_[i] * omega.cross(b);
+      if (d.z() <= 0) continue;
+      const double u = camera_.fx * d.x() / d.z() + camera_.cx, v = camera_.fy * d.y() / d.z() + camera_.cy;
+      const int x0 = static_cast<int>(std::floor(u)), y0 = static_cast<int>(std::floor(v));
+      if (x0 < 0 || y0 < 0 || x0 + 1 >= W || y0 + 1 >= H) continue;
+      const float fx = static_cast<float>(u - x0), fy = static_cast<float>(v - y0);
+      float* r0 = image_.ptr<float>(y0) + x0;
+      float* r1 = image_.ptr<float>(y0 + 1) + x0;
+      r0[0] += (1 - fx) * (1 - fy);
+      r0[1] += fx * (1 - fy);
+      r1[0] += (1 - fx) * fy;
+      r1[1] += fx * fy;
+    }
+    cv::GaussianBlur(image_, image_, cv::Size(0, 0), sigma);
+    cv::Scalar mean, deviation;
+    cv::meanStdDev(image_, mean, deviation);
+    return deviation[0] * deviation[0];
+  }
+
+ private:
+  nerf::PinholeCamera camera_;
+  std::vector<Vector3> bearings_;
+  std::vector<double> tau_;
+  cv::Mat image_;
+};
+
+}  // namespace
+
+Vector3 rotationFromEvents(const Observation& obs, const nerf::PinholeCamera& camera, double blur_px) {
+  WarpedEventImage iwe(obs, camera, 200000);
+  Vector3 omega = Vector3::Zero();
+  if (iwe.size() < 100 || !(camera.fx > 0)) return omega;
+  // Steps per axis: about the optical axis, the rotation that moves the image's edge as far as a
+  // tilt moves its centre.
+  const double radius = 0.5 * std::max(camera.width, camera.height);
+  const Vector3 unit(1 / camera.fx, 1 / camera.fy, 1 / radius);
+  const double first_px = std::clamp(std::isfinite(blur_px) ? blur_px : 0.0, 2.0, 0.25 * radius);
+  // Start: the best of no rotation and tilts of the measured blur length in 8 directions (the
+  // contrast has a single wide peak once near it), then a pattern search that halves its step,
+  // first on a smoother image (a wider basin), then a sharper one.
+  double best = iwe.contrast(omega, 3.0);
+  for (int k = 0; k < 8; ++k) {
+    const double a = k * std::numbers::pi / 4;
+    const Vector3 candidate(first_px * std::cos(a) * unit.x(), first_px * std::sin(a) * unit.y(), 0);
+    const double c = iwe.contrast(candidate, 3.0);
+    if (c > best) best = c, omega = candidate;
+  }
+  for (const double sigma : {3.0, 1.0}) {
+    best = iwe.contrast(omega, sigma);
+    for (double step_px = 0.5 * first_px; step_px >= 0.05; step_px *= 0.5) {
+      for (int round = 0, moved = 1; moved && round < 64; ++round) {
+        moved = 0;
+        for (int axis = 0; axis < 3; ++axis) {
+          for (const double sign : {1.0, -1.0}) {
+            Vector3 candidate = omega;
+            candidate[axis] += sign * step_px * unit[axis];
+            const double c = iwe.contrast(candidate, sigma);
+            if (c > best) best = c, omega = candidate, moved = 1;
+          }
+        }
+      }
+    }
+  }
+  return omega;
+}
+
 // ---------------------------------------------------------------------------------------------
 // The problem
 
@@ -169,7 +262,7 @@ BenerfProblem<T>::BenerfProblem(const Observation& obs, const BenerfOptions& opt
     known_contrast_ = true;
   }
   normalised_ = !known_contrast_ || options.event_form == BenerfOptions::EventForm::kNormalised;
-  beta_ = options.beta >= 0 ? options.beta : (normalised_ ? 2.0 : 1.0);
+  beta_ = options.beta >= 0 ? options.beta : (normalised_ ? 2.0 : 0.1);
   // Events of the exposure grouped by pixel (a counting sort keeps each pixel's time order).
   const EventSpan ev = obs.events.sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us + 1);
   const int W = camera_.width, H = camera_.height;
@@ -576,12 +669,28 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
   } restore_threads{saved_threads};
 
   int views = o.virtual_views;
-  if (views <= 0) {
-    const double blur = measureBlurLength(obs);
-    views = virtualViewsFor(blur);
-    result.parameters["blur_px_measured"] = blur;
+  double blur_px = 0;
+  if (views <= 0 || o.init == BenerfOptions::Init::kEvents) {
+    blur_px = measureBlurLength(obs);
+    result.parameters["blur_px_measured"] = blur_px;
   }
+  if (views <= 0) views = virtualViewsFor(blur_px);
   BenerfProblem<float> problem(obs, o, views);
+  if (o.init == BenerfOptions::Init::kEvents) {
+    // The knots fitted to a constant rotation through identity at mid-exposure, each then moved by
+    // its random jitter.
+    const Vector3 omega = rotationFromEvents(obs, problem.camera(), blur_px);
+    Trajectory& trajectory = problem.trajectory();
+    std::vector<StampedPose> poses;
+    for (int k = 0; k <= 20; ++k) {
+      const double s = k / 20.0;
+      const int64_t t = trajectory.beginUs() + std::llround(s * static_cast<double>(trajectory.endUs() - trajectory.beginUs()));
+      poses.push_back({t, SE3(expSO3((s - 0.5) * omega), Vector3::Zero())});
+    }
+    const Trajectory fitted = fitTrajectory(trajectory.kind(), static_cast<int>(trajectory.knots().size()), trajectory.beginUs(), trajectory.endUs(), poses);
+    for (size_t k = 0; k < trajectory.knots().size(); ++k) trajectory.knots()[k] = fitted.knots()[k] * trajectory.knots()[k];
+    result.parameters["initial_rotation_deg"] = omega.norm() * 180 / std::numbers::pi;
+  }
   nerf::AdamOptions field_adam_options;
   field_adam_options.learning_rate = o.field_lr;
   nerf::Adam<float> field_adam(problem.field().parameters(), field_adam_options);
@@ -787,6 +896,14 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
     } else if (key == "coarse_to_fine") {
       o.coarse_to_fine = number(key, value);
       if (!(o.coarse_to_fine >= 0 && o.coarse_to_fine <= 1)) throw Error("benerf: coarse_to_fine must lie in [0, 1] (the fraction of the iterations over which the field's bands open)");
+    } else if (key == "init") {
+      if (value == "events") {
+        o.init = BenerfOptions::Init::kEvents;
+      } else if (value == "identity") {
+        o.init = BenerfOptions::Init::kIdentity;
+      } else {
+        throw Error("benerf: init must be events or identity, not '" + value + "'");
+      }
     } else if (key == "field_lr") {
       o.field_lr = number(key, value);
     } else if (key == "knot_lr") {
@@ -808,7 +925,7 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
       o.log.lin_log = number(key, value) != 0;
     } else {
       throw Error("benerf: unknown setting '" + key +
-                  "' (known: budget, preset, field, iterations, views, knots, trajectory, alpha, beta, normalise, rays, blur_rays, event_rays, samples, levels, "
+                  "' (known: budget, preset, field, iterations, views, knots, trajectory, init, alpha, beta, normalise, rays, blur_rays, event_rays, samples, levels, "
                   "features, table, resolution, depth_scale, coarse_to_fine, field_lr, knot_lr, lr_final, seed, threads, checkpoint, resume, stop_after, lin_log)");
     }
   }

@@ -52,6 +52,13 @@ struct BenerfOptions {
   TrajectoryKind trajectory = TrajectoryKind::kCubicSE3;
   int knots = 4;
   double knot_init = 0.01;  // knots start at exp(u), u uniform in [-knot_init, knot_init]^6
+  // Where the trajectory starts. kIdentity: every knot near identity (the paper). kEvents: a
+  // constant rotation over the exposure found from the events by contrast maximisation
+  // (rotationFromEvents), the knots fitted to it, then jittered as above; a departure from the paper
+  // that takes away the early phase where the trajectory has to find the motion (and the runs that
+  // never do; BENCHMARKS.md).
+  enum class Init { kIdentity, kEvents };
+  Init init = Init::kEvents;
   int virtual_views = 0;    // n; 0: adapted to the blur length (measured from the events)
   double alpha = 0.1;  // event window, fraction of the exposure
   // The event term's form: kDirect compares C-weighted events with the log change (the authors'
@@ -59,8 +66,11 @@ struct BenerfOptions {
   // the batch (the paper; real data); kAuto: direct when the observation has contrast.txt.
   enum class EventForm { kAuto, kDirect, kNormalised };
   EventForm event_form = EventForm::kAuto;
-  // Weight of the event term; < 0: by form, 1 direct (measured: 0.1 and 10 lose 2-6 dB on the tiny
-  // scene at this loss scale), 2 normalised (the paper's value for real data).
+  // Weight of the event term; < 0: by form, the paper's presets: 0.1 direct (synthetic data), 2
+  // normalised (real data). The direct form's accumulated events are off the true log change by up
+  // to a threshold at each end of the window; with 0.1 the exact blurry frame weighs more (measured
+  // on the standard suite at `fast`, BENCHMARKS.md: 0.1 -> 34.7 dB, 0.25 -> 34.5, 1 -> 33.3, 0.05
+  // lost planes_blur40).
   double beta = -1;
   int iterations = 2000;
   int blur_rays = 1024;   // split over the n views: blur_rays / n pixels per step
@@ -97,6 +107,14 @@ BenerfOptions benerfBudget(const std::string& name);
 double measureBlurLength(const Observation& obs);
 // n from the blur length: about one view per 2 px of motion, within [5, 19].
 int virtualViewsFor(double blur_px);
+
+// The camera's rotation over the exposure from its events alone, by contrast maximisation
+// (Gallego, Rebecq, Scaramuzza, "A Unifying Contrast Maximization Framework for Event Cameras",
+// CVPR 2018): the rotation vector omega (rad, mid-exposure camera frame) such that warping every
+// event to mid-exposure by exp(omega (s - 1/2)), s its normalised time, gives the sharpest image of
+// warped events (largest variance, Gaussian-smoothed). A constant angular velocity; translation is
+// not modelled (it shows up as part of the rotation). blur_px sets the search's first step.
+Vector3 rotationFromEvents(const Observation& obs, const nerf::PinholeCamera& camera, double blur_px);
 
 // One optimisation problem: the observation's data, the field and the trajectory. Templated on the
 // scalar so that the whole pipeline can be checked against finite differences in double.
