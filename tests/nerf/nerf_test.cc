@@ -2,6 +2,7 @@
 #include <omp.h>
 
 #include <cmath>
+#include <memory>
 #include <random>
 #include <stdexcept>
 
@@ -189,52 +190,51 @@ void checkField(RadianceField<double>& field, const std::string& name) {
   }
 }
 
-TEST(Fields, BackwardOfBothFieldsAgainstCentralDifferences) {
+// Tiny fields for the gradient checks: an MLP with 3 frequencies, a hash grid of 3 levels x 2
+// features with O(1) features instead of the 1e-4 initialisation (ReLU kinks stay far from the
+// finite differences' steps).
+std::unique_ptr<RadianceField<double>> tinyMlpField() {
   MlpFieldConfig mc;
   mc.frequencies = 3;
   mc.depth = 3;
   mc.width = 8;
   mc.skip = 2;
   mc.colour_width = 6;
-  checkField(*makeMlpField<double>(mc, 3, 1), "mlp field");
+  return makeMlpField<double>(mc, 3, 1);
+}
+HashFieldConfig tinyHashConfig() {
   HashFieldConfig hc;
   hc.grid.levels = 3;
   hc.grid.features = 2;
   hc.grid.log2_table = 8;
   hc.grid.base_resolution = 4;
   hc.hidden = 8;
-  auto hash = makeHashField<double>(hc, 1, 2);
-  // O(1) features instead of the 1e-4 initialisation: ReLU kinks stay far from the finite
-  // differences' steps.
+  return hc;
+}
+std::unique_ptr<RadianceField<double>> tinyHashField() {
+  auto hash = makeHashField<double>(tinyHashConfig(), 1, 2);
   ParameterBlock<double> table = hash->parameters().front();
   for (size_t i = 0; i < table.size; ++i) table.values[i] *= 1e4;
-  checkField(*hash, "hash field");
+  return hash;
+}
+
+TEST(Fields, BackwardOfBothFieldsAgainstCentralDifferences) {
+  checkField(*tinyMlpField(), "mlp field");
+  checkField(*tinyHashField(), "hash field");
 }
 
 // Coarse to fine: a partly open band limit is part of the function, so the gradients still match
 // central differences; a closed band has no effect on the output and gets no gradient; a fully open
 // one is the plain field.
 TEST(Fields, BandLimitWeightsTheEncodingAndItsGradients) {
-  MlpFieldConfig mc;
-  mc.frequencies = 3;
-  mc.depth = 3;
-  mc.width = 8;
-  mc.skip = 2;
-  mc.colour_width = 6;
-  auto mlp = makeMlpField<double>(mc, 3, 1);
+  auto mlp = tinyMlpField();
   EXPECT_EQ(mlp->bands(), 4);
   mlp->setBandLimit(1.5);
   checkField(*mlp, "band-limited mlp field");
-  HashFieldConfig hc;
-  hc.grid.levels = 3;
-  hc.grid.features = 2;
-  hc.grid.log2_table = 8;
-  hc.grid.base_resolution = 4;
-  hc.hidden = 8;
-  auto hash = makeHashField<double>(hc, 1, 2);
+  const HashFieldConfig hc = tinyHashConfig();
+  auto hash = tinyHashField();
   EXPECT_EQ(hash->bands(), 3);
   ParameterBlock<double> table = hash->parameters().front();
-  for (size_t i = 0; i < table.size; ++i) table.values[i] *= 1e4;
   const MatrixD p = MatrixD::Random(3, 16) * 0.8;
   const MatrixD full = hash->forward(p);
   hash->setBandLimit(0.5);
