@@ -171,8 +171,8 @@ class WarpedEventImage {
       const Vector3 d = b + tau_[i] * omega.cross(b);
       if (d.z() <= 0) continue;
       const double u = camera_.fx * d.x() / d.z() + camera_.cx, v = camera_.fy * d.y() / d.z() + camera_.cy;
-      const int x0 = static_cast<int>(std::floor(u)), y0 = static_cast<int>(std::floor(v));
-      if (x0 < 0 || y0 < 0 || x0 + 1 >= W || y0 + 1 >= H) continue;
+      if (!(u >= 0 && v >= 0 && u < W - 1 && v < H - 1)) continue;  // also NaN
+      const int x0 = static_cast<int>(u), y0 = static_cast<int>(v);
       const float fx = static_cast<float>(u - x0), fy = static_cast<float>(v - y0);
       float* r0 = image_.ptr<float>(y0) + x0;
       float* r1 = image_.ptr<float>(y0 + 1) + x0;
