@@ -32,7 +32,8 @@ void activationBackward(const Eigen::MatrixBase<A>& out, const Eigen::MatrixBase
   d_raw.bottomRows(c) = (d_out.bottomRows(c).array() * out.bottomRows(c).array() * (T(1) - out.bottomRows(c).array())).matrix();
 }
 
-// BARF's window: band 0 always, band b at (1 - cos(pi f)) / 2 with f = clamp(bands - (b - 1), 0, 1).
+// BARF's window: band 0 always, band b at (1 - cos(pi f)) / 2 with f = clamp(bands - (b - 1), 0, 1);
+// empty when every band is fully open (the fields then skip the weighting).
 template <typename T>
 std::vector<T> bandWeights(double bands, int count) {
   std::vector<T> w(static_cast<size_t>(count), T(1));
@@ -40,6 +41,7 @@ std::vector<T> bandWeights(double bands, int count) {
     const double f = std::clamp(bands - (b - 1), 0.0, 1.0);
     w[static_cast<size_t>(b)] = static_cast<T>(0.5 * (1 - std::cos(std::numbers::pi * f)));
   }
+  if (std::all_of(w.begin(), w.end(), [](T v) { return v == T(1); })) w.clear();
   return w;
 }
 
@@ -111,15 +113,13 @@ class MlpField final : public RadianceField<T> {
   }
   // Scales the sine and cosine rows of each frequency by its band's weight (a no-op at full band).
   void weightBands(Matrix& encoded) const {
+    if (band_weight_.empty()) return;
     const Eigen::Index d = positions_.rows();
-    for (int k = 0; k < config_.frequencies; ++k) {
-      const T w = band_weight_.empty() ? T(1) : band_weight_[static_cast<size_t>(k + 1)];
-      if (w != T(1)) encoded.middleRows(d * (1 + 2 * k), 2 * d) *= w;
-    }
+    for (int k = 0; k < config_.frequencies; ++k) encoded.middleRows(d * (1 + 2 * k), 2 * d) *= band_weight_[static_cast<size_t>(k + 1)];
   }
   MlpFieldConfig config_;
   int channels_;
-  std::vector<T> band_weight_;  // empty: every band at weight 1
+  std::vector<T> band_weight_;  // per band; empty: every band at weight 1
   Mlp<T> trunk_, head_;
   Matrix positions_, out_;
 };
@@ -156,7 +156,7 @@ class HashField final : public RadianceField<T> {
       const Eigen::Index count = std::min(kBlock, n - begin);
       auto x = features_.middleCols(begin, count);
       grid_.encode(begin, count, x.data(), x.rows());
-      if (band_limited_) {
+      if (!level_weight_.empty()) {
         for (int l = 0; l < grid_.config().levels; ++l) x.middleRows(l * grid_.config().features, grid_.config().features) *= level_weight_[static_cast<size_t>(l)];
       }
       auto hidden = hidden_.middleCols(begin, count);
@@ -253,10 +253,7 @@ class HashField final : public RadianceField<T> {
     mlp_.zeroGradients();
   }
   int bands() const override { return grid_.config().levels; }
-  void setBandLimit(double bands) override {
-    level_weight_ = bandWeights<T>(bands, grid_.config().levels);
-    band_limited_ = std::any_of(level_weight_.begin(), level_weight_.end(), [](T w) { return w != T(1); });
-  }
+  void setBandLimit(double bands) override { level_weight_ = bandWeights<T>(bands, grid_.config().levels); }
 
  private:
   static constexpr Eigen::Index kBlock = 256;
@@ -266,11 +263,9 @@ class HashField final : public RadianceField<T> {
     const Eigen::Index F = grid_.config().features, n = features_.cols();
     for (int l = 0; l < grid_.config().levels; ++l) {
       T* dst = d_features_.data() + (l * n + begin) * F;
+      const T w = level_weight_.empty() ? T(1) : level_weight_[static_cast<size_t>(l)];
       for (Eigen::Index k = 0; k < count; ++k) {
-        for (Eigen::Index c = 0; c < F; ++c) dst[k * F + c] = d_x(l * F + c, k);
-      }
-      if (band_limited_) {
-        for (Eigen::Index k = 0; k < count * F; ++k) dst[k] *= level_weight_[static_cast<size_t>(l)];
+        for (Eigen::Index c = 0; c < F; ++c) dst[k * F + c] = w * d_x(l * F + c, k);
       }
     }
   }
@@ -284,8 +279,7 @@ class HashField final : public RadianceField<T> {
   // The register-blocked kernels (small_layer.h; AVX-512 targets) for the common shape in float: 32
   // encoded features (8 x 4, 16 x 2) into 64 hidden units, grey or colour; Eigen's products otherwise.
   bool fast_layers_;
-  bool band_limited_ = false;
-  std::vector<T> level_weight_;
+  std::vector<T> level_weight_;  // per level; empty: every level at weight 1
 };
 
 }  // namespace
