@@ -312,8 +312,10 @@ typename BenerfProblem<T>::Batch BenerfProblem<T>::sampleBatch(std::mt19937_64& 
   const int64_t t0 = trajectory_.beginUs(), t1 = trajectory_.endUs();
   const int64_t length = std::max<int64_t>(1, static_cast<int64_t>(std::llround(options_.alpha * static_cast<double>(t1 - t0))));
   std::uniform_int_distribution<int64_t> begin(t0, std::max(t0, t1 - length));
-  b.window_begin = begin(rng);
-  b.window_end = std::min(t1, b.window_begin + length);
+  for (int w = 0; w < std::max(1, options_.windows); ++w) {
+    b.window_begin.push_back(begin(rng));
+    b.window_end.push_back(std::min(t1, b.window_begin.back() + length));
+  }
   const size_t rays = b.blur_pixels.size() * static_cast<size_t>(views_) + 2 * b.event_pixels.size();
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
   b.jitter.resize(rays * static_cast<size_t>(options_.samples));
@@ -328,11 +330,15 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
   const int W = camera_.width;
   const int Pb = static_cast<int>(batch.blur_pixels.size()), Pe = static_cast<int>(batch.event_pixels.size());
   const int R = Pb * V + 2 * Pe;
-  // Poses: the V virtual views, then the event window's ends.
-  std::vector<double> s(static_cast<size_t>(V + 2));
+  // Poses: the V virtual views, then the ends of each event window; event pixel i has window
+  // i mod windows.
+  const int windows = static_cast<int>(batch.window_begin.size());
+  std::vector<double> s(static_cast<size_t>(V + 2 * windows));
   for (int k = 0; k < V; ++k) s[static_cast<size_t>(k)] = (k + 0.5) / V;
-  s[static_cast<size_t>(V)] = trajectory_.normalizedTime(batch.window_begin);
-  s[static_cast<size_t>(V + 1)] = trajectory_.normalizedTime(batch.window_end);
+  for (int w = 0; w < windows; ++w) {
+    s[static_cast<size_t>(V + 2 * w)] = trajectory_.normalizedTime(batch.window_begin[static_cast<size_t>(w)]);
+    s[static_cast<size_t>(V + 2 * w + 1)] = trajectory_.normalizedTime(batch.window_end[static_cast<size_t>(w)]);
+  }
   std::vector<SE3> poses(s.size());
   std::vector<KnotJacobians> jacobians(s.size());
   for (size_t k = 0; k < s.size(); ++k) poses[k] = trajectory_.evaluate(s[k], knot_gradient ? &jacobians[k] : nullptr);
@@ -341,7 +347,7 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
     if (r < Pb * V) return batch.blur_pixels[static_cast<size_t>(r / V)];
     return batch.event_pixels[static_cast<size_t>((r - Pb * V) / 2)];
   };
-  const auto rayPose = [&](int r) { return r < Pb * V ? r % V : V + (r - Pb * V) % 2; };
+  const auto rayPose = [&](int r) { return r < Pb * V ? r % V : V + 2 * (((r - Pb * V) / 2) % windows) + (r - Pb * V) % 2; };
 
   Matrix positions(3, static_cast<Eigen::Index>(R) * S);
   std::vector<T> ts(static_cast<size_t>(R) * S), delta(static_cast<size_t>(R) * S);
@@ -399,7 +405,8 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
       grey_a[static_cast<size_t>(i)] = nerf::greyOf(renders[ra].colour, C);
       grey_b[static_cast<size_t>(i)] = nerf::greyOf(renders[ra + 1].colour, C);
       change[static_cast<size_t>(i)] = options_.log.logOf(grey_b[static_cast<size_t>(i)]) - options_.log.logOf(grey_a[static_cast<size_t>(i)]);
-      target[static_cast<size_t>(i)] = accumulatedEvents(batch.event_pixels[static_cast<size_t>(i)], batch.window_begin, batch.window_end);
+      target[static_cast<size_t>(i)] = accumulatedEvents(batch.event_pixels[static_cast<size_t>(i)], batch.window_begin[static_cast<size_t>(i % windows)],
+                                                  batch.window_end[static_cast<size_t>(i % windows)]);
       target_norm2 += target[static_cast<size_t>(i)] * target[static_cast<size_t>(i)];
       change_norm2 += change[static_cast<size_t>(i)] * change[static_cast<size_t>(i)];
     }
@@ -726,7 +733,7 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
   const int final_renders = static_cast<int>(request.times_us.size()) + (mid_requested ? 0 : 1);
   const auto train_start = std::chrono::steady_clock::now();
   double curve_seconds = 0;  // spent on the training-PSNR renders
-  double loss_sum = 0;
+  double loss_sum = 0, blur_sum = 0, event_sum = 0, last_blur = 0, last_event = 0;
   int loss_count = 0;
   const int bands = problem.field().bands();
   for (int it = first; it < iterations; ++it) {
@@ -746,12 +753,16 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
     knot_adam.step();
     problem.trajectory().applyKnotSteps(knot_step);
     loss_sum += loss.total;
+    blur_sum += loss.blur;
+    event_sum += loss.event;
     ++loss_count;
     const int done = it + 1;
     if (done % o.curve_every == 0 || done == iterations) {
       result.curve.emplace_back(done, loss_sum / loss_count);
       if (request.progress) request.progress(done, iterations, loss_sum / loss_count);
-      loss_sum = 0;
+      last_blur = blur_sum / loss_count;
+      last_event = event_sum / loss_count;
+      loss_sum = blur_sum = event_sum = 0;
       loss_count = 0;
     }
     if (psnr_every > 0 && (done % psnr_every == 0 || done == iterations)) {
@@ -807,7 +818,14 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
   result.parameters["beta"] = problem.beta();
   result.parameters["events_normalised"] = problem.normalisedEvents() ? 1.0 : 0.0;
   result.parameters["rays_per_step"] = std::max(1, o.blur_rays / views) * views + 2 * o.event_rays;
-  if (!result.curve.empty()) result.parameters["final_loss"] = result.curve.back().second;
+  if (!result.curve.empty()) {
+    result.parameters["final_loss"] = result.curve.back().second;
+    // The two terms over the last curve interval: how well the model explains the blurry frame
+    // (as a PSNR of the re-blurred renders against it) and the events.
+    result.parameters["final_blur_term"] = last_blur;
+    result.parameters["final_event_term"] = last_event;
+    if (last_blur > 0) result.parameters["blur_fit_psnr"] = -10 * std::log10(last_blur);
+  }
   result.timings_s["total"] = secondsSince(start);
   return result;
 }
@@ -873,6 +891,8 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
       if (!(o.beta >= 0)) throw Error("benerf: beta must be >= 0");
     } else if (key == "normalise") {
       o.event_form = number(key, value) != 0 ? BenerfOptions::EventForm::kNormalised : BenerfOptions::EventForm::kDirect;
+    } else if (key == "windows") {
+      o.windows = settingInt(key, value, 1);
     } else if (key == "rays") {
       o.blur_rays = o.event_rays = settingInt(key, value, 1);
     } else if (key == "blur_rays") {
@@ -925,7 +945,7 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
       o.log.lin_log = number(key, value) != 0;
     } else {
       throw Error("benerf: unknown setting '" + key +
-                  "' (known: budget, preset, field, iterations, views, knots, trajectory, init, alpha, beta, normalise, rays, blur_rays, event_rays, samples, levels, "
+                  "' (known: budget, preset, field, iterations, views, knots, trajectory, init, alpha, beta, normalise, windows, rays, blur_rays, event_rays, samples, levels, "
                   "features, table, resolution, depth_scale, coarse_to_fine, field_lr, knot_lr, lr_final, seed, threads, checkpoint, resume, stop_after, lin_log)");
     }
   }

@@ -281,6 +281,9 @@ TEST(Cli, DeblurWithBenerfWritesFramesTrajectoryDisparityCurveAndCheckpoint) {
   EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --method benerf --set alpha=2 --out " + (dir / "x"), dir).exit_code, 2);
   EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --method benerf --set blur_rays=0 --out " + (dir / "x"), dir).exit_code, 2);
   EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --method benerf --set event_rays=-1 --out " + (dir / "x"), dir).exit_code, 2);
+  r = runEvkit("deblur " + (dir / "obs") + " --method benerf --set windows=0 --out " + (dir / "x"), dir);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("windows=0 must be an integer >= 1"), std::string::npos) << r.err;
   r = runEvkit("deblur " + (dir / "obs") + " --method benerf --set coarse_to_fine=1.5 --out " + (dir / "x"), dir);
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_NE(r.err.find("coarse_to_fine must lie in [0, 1]"), std::string::npos) << r.err;

@@ -43,6 +43,7 @@ BenerfOptions tinyOptions() {
   o.knot_init = 0.05;
   o.blur_rays = 9;
   o.event_rays = 5;
+  o.windows = 2;  // event pixels 0, 2, 4 share one window, 1 and 3 the other
   o.samples = 8;
   o.beta = 0.7;
   return o;
@@ -59,6 +60,7 @@ void checkWholePipeline(const BenerfOptions& options) {
   for (size_t i = 0; i < table.size; ++i) table.values[i] *= 1e4;
   std::mt19937_64 rng(5);
   const auto batch = problem.sampleBatch(rng);
+  ASSERT_EQ(batch.window_begin.size(), static_cast<size_t>(options.windows));
   Eigen::VectorXd knot_gradient;
   const auto loss = problem.evaluate(batch, &knot_gradient);
   ASSERT_TRUE(std::isfinite(loss.total));
@@ -117,6 +119,7 @@ void checkWholePipeline(const BenerfOptions& options) {
 TEST(Benerf, WholePipelineGradientsMatchCentralDifferencesWithNormalisedEvents) {
   BenerfOptions o = tinyOptions();
   o.event_form = BenerfOptions::EventForm::kNormalised;
+  o.windows = 1;  // the paper's single window
   checkWholePipeline(o);
 }
 
