@@ -312,7 +312,8 @@ typename BenerfProblem<T>::Batch BenerfProblem<T>::sampleBatch(std::mt19937_64& 
   const int64_t t0 = trajectory_.beginUs(), t1 = trajectory_.endUs();
   const int64_t length = std::max<int64_t>(1, static_cast<int64_t>(std::llround(options_.alpha * static_cast<double>(t1 - t0))));
   std::uniform_int_distribution<int64_t> begin(t0, std::max(t0, t1 - length));
-  for (int w = 0; w < std::max(1, options_.windows); ++w) {
+  const int windows = std::min(std::max(1, options_.windows), options_.event_rays);  // none without event pixels
+  for (int w = 0; w < windows; ++w) {
     b.window_begin.push_back(begin(rng));
     b.window_end.push_back(std::min(t1, b.window_begin.back() + length));
   }
