@@ -270,6 +270,8 @@ TEST(Cli, DeblurWithBenerfWritesFramesTrajectoryDisparityCurveAndCheckpoint) {
   EXPECT_NE(summary.find("\"training_curve\": [[25, "), std::string::npos) << summary;
   EXPECT_NE(summary.find("\"training_psnr\": [["), std::string::npos) << summary;
   EXPECT_NE(summary.find("\"virtual_views\": "), std::string::npos) << summary;
+  EXPECT_NE(summary.find("\"blur_fit_psnr\": "), std::string::npos) << summary;
+  EXPECT_NE(summary.find("\"final_event_term\": "), std::string::npos) << summary;
   // Resuming from the finished checkpoint trains no further and gives the same frames.
   r = runEvkit("deblur " + (dir / "obs") + " --method benerf --set budget=fast --set iterations=30 --set rays=128 --set samples=8 " +
                    "--set resume=" + (dir / "ckpt") + " --frames 3 --out " + (dir / "again"),
