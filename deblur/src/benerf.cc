@@ -381,8 +381,20 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
 
   Loss loss;
   std::vector<T> d_colour(static_cast<size_t>(R) * 3, T(0));  // dL/d(rendered colour) per ray
-  // Blur term: the mean of the V renders against the blurry pixel.
-  for (int i = 0; i < Pb; ++i) {
+  // Blur term: the mean of the V renders against the blurry pixel (or each render against its
+  // view's target).
+  for (int i = 0; i < Pb && !view_targets_.empty(); ++i) {
+    const int p = batch.blur_pixels[static_cast<size_t>(i)];
+    for (int k = 0; k < V; ++k) {
+      const float* b = view_targets_[static_cast<size_t>(k)].ptr<float>(p / W) + (p % W) * C;
+      for (int c = 0; c < C; ++c) {
+        const T e = renders[static_cast<size_t>(i * V + k)].colour[c] - static_cast<T>(b[c]);
+        loss.blur += static_cast<double>(e * e) / (Pb * C * V);
+        d_colour[static_cast<size_t>(i * V + k) * 3 + c] = T(2) * e / static_cast<T>(Pb * C * V);
+      }
+    }
+  }
+  for (int i = 0; i < Pb && view_targets_.empty(); ++i) {
     const int p = batch.blur_pixels[static_cast<size_t>(i)];
     const float* b = blurry_.ptr<float>(p / W) + (p % W) * C;
     for (int c = 0; c < C; ++c) {
@@ -503,6 +515,15 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
     for (int i = 0; i < J.count; ++i) knot_gradient->segment<6>(6 * (J.first_knot + i)) += J.d_pose_d_knot[static_cast<size_t>(i)].transpose() * g;
   }
   return loss;
+}
+
+template <typename T>
+void BenerfProblem<T>::setViewTargets(std::vector<cv::Mat> targets) {
+  if (!targets.empty() && static_cast<int>(targets.size()) != views_) throw Error("benerf: one view target per virtual view");
+  for (const cv::Mat& t : targets) {
+    if (t.type() != CV_MAKETYPE(CV_32F, channels_) || t.size() != blurry_.size()) throw Error("benerf: a view target must be float32 like the blurry frame");
+  }
+  view_targets_ = std::move(targets);
 }
 
 template <typename T>
@@ -718,11 +739,43 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
     first = c.iteration;
     iterations = std::max(iterations, c.iterations);
   }
+  // One learning-rate schedule over the prefit's steps and the training's.
   const auto setSchedule = [&](int total) {
     field_adam.options().decay_rate = knot_adam.options().decay_rate = o.lr_final;
-    field_adam.options().decay_steps = knot_adam.options().decay_steps = std::max(1, total);
+    field_adam.options().decay_steps = knot_adam.options().decay_steps = std::max(1, o.prefit + total);
   };
   setSchedule(iterations);
+  if (o.prefit > 0 && o.resume.empty()) {
+    // The field and knots fitted to EDI's latent frames at the views' times (every band open, no
+    // event term), with the training's optimisers, so that their moments carry over.
+    const auto prefit_start = std::chrono::steady_clock::now();
+    Trajectory& trajectory = problem.trajectory();
+    DeblurRequest edi_request;
+    for (int k = 0; k < views; ++k) {
+      edi_request.times_us.push_back(trajectory.beginUs() + std::llround((k + 0.5) / views * static_cast<double>(trajectory.endUs() - trajectory.beginUs())));
+    }
+    std::vector<cv::Mat> targets;
+    for (const Frame& f : EdiDeblurrer{EdiOptions{}}.run(obs, edi_request).frames) targets.push_back(toFloat(f.image));
+    problem.setViewTargets(std::move(targets));
+    std::mt19937_64 prefit_rng(o.seed + 1);
+    for (int it = 0; it < o.prefit; ++it) {
+      auto batch = problem.sampleBatch(prefit_rng);
+      batch.event_pixels.clear();
+      batch.window_begin.clear();
+      batch.window_end.clear();
+      const auto loss = problem.evaluate(batch, &knot_gradient);
+      if (!std::isfinite(loss.total) || !knot_gradient.allFinite()) {
+        throw Error("benerf: the prefit's loss or its gradient became non-finite at prefit iteration " + std::to_string(it));
+      }
+      field_adam.step();
+      knot_step.setZero();
+      knot_adam.step();
+      trajectory.applyKnotSteps(knot_step);
+      if (it + 1 == o.prefit) result.parameters["prefit_final_term"] = loss.blur;
+    }
+    problem.setViewTargets({});
+    result.timings_s["prefit"] = secondsSince(prefit_start);
+  }
   result.timings_s["setup"] = secondsSince(start);
 
   const Frame* gt = midGroundTruth(obs);
@@ -914,6 +967,8 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
       if (!(o.depth_scale > 0 && o.depth_scale <= 1)) throw Error("benerf: depth_scale must lie in (0, 1]");
     } else if (key == "resolution") {
       o.finest_resolution = settingInt(key, value, 2);
+    } else if (key == "prefit") {
+      o.prefit = settingInt(key, value, 0);
     } else if (key == "coarse_to_fine") {
       o.coarse_to_fine = number(key, value);
       if (!(o.coarse_to_fine >= 0 && o.coarse_to_fine <= 1)) throw Error("benerf: coarse_to_fine must lie in [0, 1] (the fraction of the iterations over which the field's bands open)");
@@ -946,7 +1001,7 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
       o.log.lin_log = number(key, value) != 0;
     } else {
       throw Error("benerf: unknown setting '" + key +
-                  "' (known: budget, preset, field, iterations, views, knots, trajectory, init, alpha, beta, normalise, windows, rays, blur_rays, event_rays, samples, levels, "
+                  "' (known: budget, preset, field, iterations, views, knots, trajectory, init, alpha, beta, normalise, windows, prefit, rays, blur_rays, event_rays, samples, levels, "
                   "features, table, resolution, depth_scale, coarse_to_fine, field_lr, knot_lr, lr_final, seed, threads, checkpoint, resume, stop_after, lin_log)");
     }
   }

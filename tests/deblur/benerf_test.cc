@@ -51,9 +51,18 @@ BenerfOptions tinyOptions() {
 
 double relativeError(double analytic, double numeric, double scale) { return std::abs(analytic - numeric) / scale; }
 
-void checkWholePipeline(const BenerfOptions& options) {
+void checkWholePipeline(const BenerfOptions& options, bool view_targets = false) {
   const Observation obs = makeObservation(24, 18, 4, 3);
   BenerfProblem<double> problem(obs, options, 3);
+  if (view_targets) {  // the prefit's per-view blur term: one target frame per view
+    std::vector<cv::Mat> targets;
+    for (int k = 0; k < 3; ++k) {
+      cv::Mat t(18, 24, CV_32F);
+      cv::randu(t, 0.1 * (k + 1), 0.3 * (k + 1));
+      targets.push_back(t);
+    }
+    problem.setViewTargets(targets);
+  }
   // O(1) table features instead of the 1e-4 initialisation: the tiny MLP's ReLU kinks stay far
   // from the finite differences' steps.
   const nerf::ParameterBlock<double> table = problem.field().parameters().front();
@@ -128,6 +137,20 @@ TEST(Benerf, WholePipelineGradientsMatchCentralDifferencesWithDirectEvents) {
   o.event_form = BenerfOptions::EventForm::kDirect;
   o.trajectory = TrajectoryKind::kCubicSplit;
   checkWholePipeline(o);
+}
+
+TEST(Benerf, WholePipelineGradientsMatchCentralDifferencesWithViewTargets) {
+  checkWholePipeline(tinyOptions(), true);
+}
+
+TEST(Benerf, ViewTargetsMustMatchTheViewsAndTheFrame) {
+  const Observation obs = makeObservation(24, 18, 4, 3);
+  BenerfProblem<float> problem(obs, tinyOptions(), 3);
+  EXPECT_THROW(problem.setViewTargets({cv::Mat::zeros(18, 24, CV_32F)}), Error);  // 1 target, 3 views
+  EXPECT_THROW(problem.setViewTargets(std::vector<cv::Mat>(3, cv::Mat::zeros(18, 24, CV_8U))), Error);
+  EXPECT_THROW(problem.setViewTargets(std::vector<cv::Mat>(3, cv::Mat::zeros(17, 24, CV_32F))), Error);
+  EXPECT_NO_THROW(problem.setViewTargets(std::vector<cv::Mat>(3, cv::Mat::zeros(18, 24, CV_32F))));
+  EXPECT_NO_THROW(problem.setViewTargets({}));
 }
 
 }  // namespace

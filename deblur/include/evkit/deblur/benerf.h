@@ -90,6 +90,9 @@ struct BenerfOptions {
   // `fast` (BENCHMARKS.md): box_blur40, whose trajectory otherwise locks in late or not at all,
   // 20.8 -> 28.0 dB.
   double coarse_to_fine = 0.4;
+  // Iterations fitting the field and knots to EDI's latent frames at the views' times before the
+  // BeNeRF loss takes over (not in the paper); 0: none.
+  int prefit = 0;
   double field_lr = 1e-2, knot_lr = 3e-3;
   double lr_final = 0.1;  // both rates decay exponentially to this fraction at the last iteration
   double budget_seconds = 0;  // > 0: the iteration count is chosen so that the whole run (training and renders) fits this wall time
@@ -144,6 +147,10 @@ class BenerfProblem {
   // Loss of the batch; zeroes, then fills the field's gradients and knot_gradient (6 per knot:
   // right-perturbation tangent) when it is not null.
   Loss evaluate(const Batch& batch, Eigen::VectorXd* knot_gradient);
+  // Per-view targets (float32, the blurry frame's size and channels, one per virtual view): while
+  // set, the blur term compares each view's render with its target instead of their mean with the
+  // blurry frame. Empty: the blurry frame.
+  void setViewTargets(std::vector<cv::Mat> targets);
 
   // A sharp render at time t (linear, the blurry frame's channels) and, optionally, its disparity
   // (1 / depth in the units of the NDC frame, background = 0).
@@ -168,6 +175,7 @@ class BenerfProblem {
   nerf::PinholeCamera camera_;
   int channels_, views_;
   cv::Mat blurry_;  // float32
+  std::vector<cv::Mat> view_targets_;  // float32; empty: the blur term
   Trajectory trajectory_;
   std::unique_ptr<nerf::RadianceField<T>> field_;
   double c_on_ = 1, c_off_ = 1;
