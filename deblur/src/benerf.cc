@@ -263,6 +263,15 @@ BenerfProblem<T>::BenerfProblem(const Observation& obs, const BenerfOptions& opt
   }
   normalised_ = !known_contrast_ || options.event_form == BenerfOptions::EventForm::kNormalised;
   beta_ = options.beta >= 0 ? options.beta : (normalised_ ? 2.0 : 0.1);
+  // The blur term is in linear intensity and the event term in log intensity, so their balance
+  // shifts with the frame's brightness m as m^2. Below kDimFrame the blur term is weighed as if the
+  // frame were that bright (hard_dark, m ~ 0.01, otherwise follows the events' noise-free log
+  // changes with no absolute anchor; BENCHMARKS.md).
+  constexpr double kDimFrame = 0.1;
+  const cv::Scalar mean = cv::mean(blurry_);
+  double brightness = 0;
+  for (int c = 0; c < channels_; ++c) brightness += mean[c] / channels_;
+  blur_weight_ = brightness < kDimFrame ? std::pow(kDimFrame / std::max(brightness, 1e-3), 2) : 1.0;
   // Events of the exposure grouped by pixel (a counting sort keeps each pixel's time order).
   const EventSpan ev = obs.events.sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us + 1);
   const int W = camera_.width, H = camera_.height;
@@ -390,7 +399,7 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
       for (int c = 0; c < C; ++c) {
         const T e = renders[static_cast<size_t>(i * V + k)].colour[c] - static_cast<T>(b[c]);
         loss.blur += static_cast<double>(e * e) / (Pb * C * V);
-        d_colour[static_cast<size_t>(i * V + k) * 3 + c] = T(2) * e / static_cast<T>(Pb * C * V);
+        d_colour[static_cast<size_t>(i * V + k) * 3 + c] = static_cast<T>(2 * blur_weight_) * e / static_cast<T>(Pb * C * V);
       }
     }
   }
@@ -403,7 +412,7 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
       mean /= T(V);
       const T e = mean - static_cast<T>(b[c]);
       loss.blur += static_cast<double>(e * e) / (Pb * C);
-      const T g = T(2) * e / static_cast<T>(Pb * C * V);
+      const T g = static_cast<T>(2 * blur_weight_) * e / static_cast<T>(Pb * C * V);
       for (int k = 0; k < V; ++k) d_colour[static_cast<size_t>(i * V + k) * 3 + c] = g;
     }
   }
@@ -457,7 +466,7 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
       nerf::greyBackward(d * options_.log.logSlope(grey_b[static_cast<size_t>(i)]), C, &d_colour[(ra + 1) * 3]);
     }
   }
-  loss.total = loss.blur + beta_ * loss.event;
+  loss.total = blur_weight_ * loss.blur + beta_ * loss.event;
   if (!knot_gradient) return loss;
 
   // Back through the renderer and the field.
@@ -870,6 +879,7 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
   result.parameters["events"] = static_cast<double>(problem.eventsInExposure());
   result.parameters["samples_per_ray"] = o.samples;
   result.parameters["beta"] = problem.beta();
+  result.parameters["blur_weight"] = problem.blurWeight();
   result.parameters["events_normalised"] = problem.normalisedEvents() ? 1.0 : 0.0;
   result.parameters["rays_per_step"] = std::max(1, o.blur_rays / views) * views + 2 * o.event_rays;
   if (!result.curve.empty()) {

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <filesystem>
 
+#include "evkit/deblur/edi.h"
 #include "evkit/deblur/metrics.h"
 #include "evkit/deblur/observation.h"
 #include "evkit/events/error.h"
@@ -51,9 +52,13 @@ BenerfOptions tinyOptions() {
 
 double relativeError(double analytic, double numeric, double scale) { return std::abs(analytic - numeric) / scale; }
 
-void checkWholePipeline(const BenerfOptions& options, bool view_targets = false) {
-  const Observation obs = makeObservation(24, 18, 4, 3);
+void checkWholePipeline(const BenerfOptions& options, bool view_targets = false, double brightness = 1) {
+  Observation obs = makeObservation(24, 18, 4, 3);
+  obs.blurry.image *= brightness;
   BenerfProblem<double> problem(obs, options, 3);
+  if (brightness < 0.1) {
+    EXPECT_GT(problem.blurWeight(), 10.0);
+  }
   if (view_targets) {  // the prefit's per-view blur term: one target frame per view
     std::vector<cv::Mat> targets;
     for (int k = 0; k < 3; ++k) {
@@ -143,6 +148,11 @@ TEST(Benerf, WholePipelineGradientsMatchCentralDifferencesWithViewTargets) {
   checkWholePipeline(tinyOptions(), true);
 }
 
+// A dim frame (mean ~0.02): the blur term weighed up.
+TEST(Benerf, WholePipelineGradientsMatchCentralDifferencesOnADimFrame) {
+  checkWholePipeline(tinyOptions(), false, 0.05);
+}
+
 TEST(Benerf, ViewTargetsMustMatchTheViewsAndTheFrame) {
   const Observation obs = makeObservation(24, 18, 4, 3);
   BenerfProblem<float> problem(obs, tinyOptions(), 3);
@@ -229,6 +239,24 @@ TEST(Benerf, RotationFromEventsFollowsTheTrueMotion) {
   quiet.events = EventStore(SensorSize{48, 36});
   const nerf::PinholeCamera camera{48, 36, quiet.camera.fx, quiet.camera.fy, quiet.camera.cx, quiet.camera.cy, quiet.camera.distortion};
   EXPECT_EQ(rotationFromEvents(quiet, camera, 6).norm(), 0.0);
+}
+
+// The prefit alone (one training step after it): the field reproduces EDI's latent frames at the
+// views' times, so its mid-exposure frame is far sharper than the blurry input.
+TEST(Benerf, PrefitFitsEdisLatentFrames) {
+  const Observation& obs = tinyScene();
+  BenerfOptions o = smallBudget();
+  o.prefit = 600;
+  o.blur_rays = 2048;  // 256 pixels of the 8 views per step
+  o.iterations = 1;
+  const DeblurRequest request{{obs.blurry.midExposure()}, {}};
+  const DeblurResult r = BenerfDeblurrer(o).run(obs, request);
+  const Frame& gt = gtMid(obs);
+  const double prefit = psnr(r.frames[0].image, gt.image), blurry = psnr(obs.blurry.image, gt.image);
+  EXPECT_GE(prefit, blurry + 3.0) << "prefit " << prefit << " dB, blurry " << blurry << " dB";
+  ASSERT_TRUE(r.parameters.count("prefit_final_term"));
+  EXPECT_LT(r.parameters.at("prefit_final_term"), 2e-3);  // the views' renders within ~0.045 of EDI's frames
+  EXPECT_GT(r.timings_s.at("prefit"), 0.0);
 }
 
 TEST(Benerf, DeterministicWithOneThreadAndASeed) {

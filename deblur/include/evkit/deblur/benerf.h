@@ -165,6 +165,7 @@ class BenerfProblem {
   int64_t eventsInExposure() const { return static_cast<int64_t>(event_t_.size()); }
   bool normalisedEvents() const { return normalised_; }
   double beta() const { return beta_; }
+  double blurWeight() const { return blur_weight_; }
 
  private:
   double accumulatedEvents(int pixel, int64_t t_begin, int64_t t_end) const;
@@ -182,6 +183,7 @@ class BenerfProblem {
   bool known_contrast_ = false;
   bool normalised_ = true;  // the event term's form
   double beta_ = 1;
+  double blur_weight_ = 1;  // the blur term's weight: 1, more for a dim frame
   // Events of the exposure by pixel: event_first_[p] .. event_first_[p + 1] into event_t_ and
   // event_level_ (the accumulated polarity after the event).
   std::vector<uint32_t> event_first_;
