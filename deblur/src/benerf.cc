@@ -264,14 +264,12 @@ BenerfProblem<T>::BenerfProblem(const Observation& obs, const BenerfOptions& opt
   normalised_ = !known_contrast_ || options.event_form == BenerfOptions::EventForm::kNormalised;
   beta_ = options.beta >= 0 ? options.beta : (normalised_ ? 2.0 : 0.1);
   // The blur term is in linear intensity and the event term in log intensity, so their balance
-  // shifts with the frame's brightness m as m^2. Below kDimFrame the blur term is weighed as if the
-  // frame were that bright (hard_dark, m ~ 0.01, otherwise follows the events' noise-free log
-  // changes with no absolute anchor; BENCHMARKS.md).
-  constexpr double kDimFrame = 0.1;
+  // shifts with the frame's brightness m as m^2: below options.dim_frame the blur term is weighed as
+  // if the frame were that bright.
   const cv::Scalar mean = cv::mean(blurry_);
   double brightness = 0;
   for (int c = 0; c < channels_; ++c) brightness += mean[c] / channels_;
-  blur_weight_ = brightness < kDimFrame ? std::pow(kDimFrame / std::max(brightness, 1e-3), 2) : 1.0;
+  blur_weight_ = brightness < options.dim_frame ? std::pow(options.dim_frame / std::max(brightness, 1e-3), 2) : 1.0;
   // Events of the exposure grouped by pixel (a counting sort keeps each pixel's time order).
   const EventSpan ev = obs.events.sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us + 1);
   const int W = camera_.width, H = camera_.height;
@@ -977,6 +975,9 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
       if (!(o.depth_scale > 0 && o.depth_scale <= 1)) throw Error("benerf: depth_scale must lie in (0, 1]");
     } else if (key == "resolution") {
       o.finest_resolution = settingInt(key, value, 2);
+    } else if (key == "dim_frame") {
+      o.dim_frame = number(key, value);
+      if (!(o.dim_frame >= 0 && o.dim_frame <= 1)) throw Error("benerf: dim_frame must lie in [0, 1] (a mean linear brightness)");
     } else if (key == "prefit") {
       o.prefit = settingInt(key, value, 0);
     } else if (key == "coarse_to_fine") {
@@ -1011,7 +1012,7 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
       o.log.lin_log = number(key, value) != 0;
     } else {
       throw Error("benerf: unknown setting '" + key +
-                  "' (known: budget, preset, field, iterations, views, knots, trajectory, init, alpha, beta, normalise, windows, prefit, rays, blur_rays, event_rays, samples, levels, "
+                  "' (known: budget, preset, field, iterations, views, knots, trajectory, init, alpha, beta, normalise, windows, prefit, dim_frame, rays, blur_rays, event_rays, samples, levels, "
                   "features, table, resolution, depth_scale, coarse_to_fine, field_lr, knot_lr, lr_final, seed, threads, checkpoint, resume, stop_after, lin_log)");
     }
   }
