@@ -272,6 +272,7 @@ TEST(Cli, DeblurWithBenerfWritesFramesTrajectoryDisparityCurveAndCheckpoint) {
   EXPECT_NE(summary.find("\"virtual_views\": "), std::string::npos) << summary;
   EXPECT_NE(summary.find("\"blur_fit_psnr\": "), std::string::npos) << summary;
   EXPECT_NE(summary.find("\"final_event_term\": "), std::string::npos) << summary;
+  EXPECT_NE(summary.find("\"blur_weight\": 1"), std::string::npos) << summary;  // not a dim frame
   // Resuming from the finished checkpoint trains no further and gives the same frames.
   r = runEvkit("deblur " + (dir / "obs") + " --method benerf --set budget=fast --set iterations=30 --set rays=128 --set samples=8 " +
                    "--set resume=" + (dir / "ckpt") + " --frames 3 --out " + (dir / "again"),
@@ -289,6 +290,12 @@ TEST(Cli, DeblurWithBenerfWritesFramesTrajectoryDisparityCurveAndCheckpoint) {
   r = runEvkit("deblur " + (dir / "obs") + " --method benerf --set coarse_to_fine=1.5 --out " + (dir / "x"), dir);
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_NE(r.err.find("coarse_to_fine must lie in [0, 1]"), std::string::npos) << r.err;
+  r = runEvkit("deblur " + (dir / "obs") + " --method benerf --set dim_frame=2 --out " + (dir / "x"), dir);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("dim_frame must lie in [0, 1]"), std::string::npos) << r.err;
+  r = runEvkit("deblur " + (dir / "obs") + " --method benerf --set prefit=-5 --out " + (dir / "x"), dir);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("prefit=-5"), std::string::npos) << r.err;
   std::ofstream(dir / "bad.ckpt") << "EVKBNRF1 not really";
   r = runEvkit("deblur " + (dir / "obs") + " --method benerf --set resume=" + (dir / "bad.ckpt") + " --out " + (dir / "x"), dir);
   EXPECT_EQ(r.exit_code, 1);
