@@ -246,8 +246,10 @@ TEST(Benerf, RotationFromEventsFollowsTheTrueMotion) {
 TEST(Benerf, PrefitFitsEdisLatentFrames) {
   const Observation& obs = tinyScene();
   BenerfOptions o = smallBudget();
-  o.prefit = 600;
-  o.blur_rays = 2048;  // 256 pixels of the 8 views per step
+  o.prefit = 400;
+  o.samples = 8;
+  o.virtual_views = 4;
+  o.blur_rays = 1024;  // 256 pixels of the 4 views per step
   o.iterations = 1;
   const DeblurRequest request{{obs.blurry.midExposure()}, {}};
   const DeblurResult r = BenerfDeblurrer(o).run(obs, request);
@@ -255,7 +257,7 @@ TEST(Benerf, PrefitFitsEdisLatentFrames) {
   const double prefit = psnr(r.frames[0].image, gt.image), blurry = psnr(obs.blurry.image, gt.image);
   EXPECT_GE(prefit, blurry + 3.0) << "prefit " << prefit << " dB, blurry " << blurry << " dB";
   ASSERT_TRUE(r.parameters.count("prefit_final_term"));
-  EXPECT_LT(r.parameters.at("prefit_final_term"), 2e-3);  // the views' renders within ~0.045 of EDI's frames
+  EXPECT_LT(r.parameters.at("prefit_final_term"), 3e-3);  // the views' renders within ~0.055 (RMS) of EDI's frames
   EXPECT_GT(r.timings_s.at("prefit"), 0.0);
 }
 
