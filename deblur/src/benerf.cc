@@ -342,7 +342,7 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
   // i mod windows.
   const int windows = static_cast<int>(batch.window_begin.size());
   std::vector<double> s(static_cast<size_t>(V + 2 * windows));
-  for (int k = 0; k < V; ++k) s[static_cast<size_t>(k)] = (k + 0.5) / V;
+  for (int k = 0; k < V; ++k) s[static_cast<size_t>(k)] = viewTime(k);
   for (int w = 0; w < windows; ++w) {
     s[static_cast<size_t>(V + 2 * w)] = trajectory_.normalizedTime(batch.window_begin[static_cast<size_t>(w)]);
     s[static_cast<size_t>(V + 2 * w + 1)] = trajectory_.normalizedTime(batch.window_end[static_cast<size_t>(w)]);
@@ -390,19 +390,19 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
   std::vector<T> d_colour(static_cast<size_t>(R) * 3, T(0));  // dL/d(rendered colour) per ray
   // Blur term: the mean of the V renders against the blurry pixel (or each render against its
   // view's target).
-  for (int i = 0; i < Pb && !view_targets_.empty(); ++i) {
+  for (int i = 0; i < Pb; ++i) {
     const int p = batch.blur_pixels[static_cast<size_t>(i)];
-    for (int k = 0; k < V; ++k) {
-      const float* b = view_targets_[static_cast<size_t>(k)].ptr<float>(p / W) + (p % W) * C;
-      for (int c = 0; c < C; ++c) {
-        const T e = renders[static_cast<size_t>(i * V + k)].colour[c] - static_cast<T>(b[c]);
-        loss.blur += static_cast<double>(e * e) / (Pb * C * V);
-        d_colour[static_cast<size_t>(i * V + k) * 3 + c] = static_cast<T>(2 * blur_weight_) * e / static_cast<T>(Pb * C * V);
+    if (!view_targets_.empty()) {
+      for (int k = 0; k < V; ++k) {
+        const float* b = view_targets_[static_cast<size_t>(k)].ptr<float>(p / W) + (p % W) * C;
+        for (int c = 0; c < C; ++c) {
+          const T e = renders[static_cast<size_t>(i * V + k)].colour[c] - static_cast<T>(b[c]);
+          loss.blur += static_cast<double>(e * e) / (Pb * C * V);
+          d_colour[static_cast<size_t>(i * V + k) * 3 + c] = static_cast<T>(2 * blur_weight_) * e / static_cast<T>(Pb * C * V);
+        }
       }
+      continue;
     }
-  }
-  for (int i = 0; i < Pb && view_targets_.empty(); ++i) {
-    const int p = batch.blur_pixels[static_cast<size_t>(i)];
     const float* b = blurry_.ptr<float>(p / W) + (p % W) * C;
     for (int c = 0; c < C; ++c) {
       T mean = 0;
@@ -752,14 +752,27 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
     field_adam.options().decay_steps = knot_adam.options().decay_steps = std::max(1, o.prefit + total);
   };
   setSchedule(iterations);
+  // One step of both optimisers; a non-finite loss or gradient is a loud error naming the step.
+  const auto trainStep = [&](const BenerfProblem<float>::Batch& batch, const char* step_name, int step) {
+    const auto loss = problem.evaluate(batch, &knot_gradient);
+    if (!std::isfinite(loss.total) || !knot_gradient.allFinite()) {
+      throw Error("benerf: the loss or its gradient became " + std::string(std::isfinite(loss.total) ? "non-finite" : "NaN/Inf") + " at " +
+                  step_name + " " + std::to_string(step) + " (blur term " + std::to_string(loss.blur) + ", event term " + std::to_string(loss.event) + ")");
+    }
+    field_adam.step();
+    knot_step.setZero();
+    knot_adam.step();
+    problem.trajectory().applyKnotSteps(knot_step);
+    return loss;
+  };
   if (o.prefit > 0 && o.resume.empty()) {
     // The field and knots fitted to EDI's latent frames at the views' times (every band open, no
     // event term), with the training's optimisers, so that their moments carry over.
     const auto prefit_start = std::chrono::steady_clock::now();
-    Trajectory& trajectory = problem.trajectory();
+    const Trajectory& trajectory = problem.trajectory();
     DeblurRequest edi_request;
     for (int k = 0; k < views; ++k) {
-      edi_request.times_us.push_back(trajectory.beginUs() + std::llround((k + 0.5) / views * static_cast<double>(trajectory.endUs() - trajectory.beginUs())));
+      edi_request.times_us.push_back(trajectory.beginUs() + std::llround(problem.viewTime(k) * static_cast<double>(trajectory.endUs() - trajectory.beginUs())));
     }
     std::vector<cv::Mat> targets;
     for (const Frame& f : EdiDeblurrer{EdiOptions{}}.run(obs, edi_request).frames) targets.push_back(toFloat(f.image));
@@ -770,14 +783,7 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
       batch.event_pixels.clear();
       batch.window_begin.clear();
       batch.window_end.clear();
-      const auto loss = problem.evaluate(batch, &knot_gradient);
-      if (!std::isfinite(loss.total) || !knot_gradient.allFinite()) {
-        throw Error("benerf: the prefit's loss or its gradient became non-finite at prefit iteration " + std::to_string(it));
-      }
-      field_adam.step();
-      knot_step.setZero();
-      knot_adam.step();
-      trajectory.applyKnotSteps(knot_step);
+      const auto loss = trainStep(batch, "prefit iteration", it);
       if (it + 1 == o.prefit) result.parameters["prefit_final_term"] = loss.blur;
     }
     problem.setViewTargets({});
@@ -802,17 +808,7 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
       const double opened = std::clamp(static_cast<double>(it) / (o.coarse_to_fine * iterations), 0.0, 1.0);
       problem.field().setBandLimit(1 + (bands - 2) * opened);
     }
-    const auto batch = problem.sampleBatch(rng);
-    const auto loss = problem.evaluate(batch, &knot_gradient);
-    if (!std::isfinite(loss.total) || !knot_gradient.allFinite()) {
-      throw Error("benerf: the loss or its gradient became " + std::string(std::isfinite(loss.total) ? "non-finite" : "NaN/Inf") +
-                  " at iteration " + std::to_string(it) + " (blur term " + std::to_string(loss.blur) + ", event term " +
-                  std::to_string(loss.event) + ")");
-    }
-    field_adam.step();
-    knot_step.setZero();
-    knot_adam.step();
-    problem.trajectory().applyKnotSteps(knot_step);
+    const auto loss = trainStep(problem.sampleBatch(rng), "iteration", it);
     loss_sum += loss.total;
     blur_sum += loss.blur;
     event_sum += loss.event;

@@ -168,6 +168,7 @@ class BenerfProblem {
   Trajectory& trajectory() { return trajectory_; }
   const nerf::PinholeCamera& camera() const { return camera_; }
   int virtualViews() const { return views_; }
+  double viewTime(int k) const { return (k + 0.5) / views_; }  // view k's normalised time in the exposure
   int64_t eventsInExposure() const { return static_cast<int64_t>(event_t_.size()); }
   bool normalisedEvents() const { return normalised_; }
   double beta() const { return beta_; }
