@@ -63,6 +63,8 @@ int runBench(const Args& args) {
       "mlp-budgets", po::value<std::string>()->default_value("60s"), "budgets of BeNeRF with the paper's MLP (benerf-mlp)")(
       "set", po::value<std::vector<std::string>>()->composing(), "METHOD.KEY=VALUE added to every run of METHOD (e.g. benerf.seed=2)")(
       "threads", po::value<int>(), "BeNeRF threads (default: all cores)")(
+      "unknown-contrast", po::bool_switch(),
+      "the methods are not given the thresholds (contrast.txt), as with real data: EDI searches c, BeNeRF compares normalised events")(
       "rerun", po::bool_switch(), "run again what OUT/results.csv already holds");
   po::positional_options_description pos;
   po::variables_map vm;
@@ -101,7 +103,9 @@ int runBench(const Args& args) {
                                                splitList(vm["mlp-budgets"].as<std::string>()), extra);
   const std::string out = vm["out"].as<std::string>();
   const std::string data = vm.count("data") ? vm["data"].as<std::string>() : out + "/suite";
-  const std::string title = "evkit bench: suite " + vm["suite"].as<std::string>() + " at " + vm["size"].as<std::string>();
+  const bool unknown_contrast = vm["unknown-contrast"].as<bool>();
+  const std::string title = "evkit bench: suite " + vm["suite"].as<std::string>() + " at " + vm["size"].as<std::string>() +
+                            (unknown_contrast ? ", thresholds not given to the methods" : "");
 
   // Finished runs of an earlier call are kept (and not run again unless --rerun).
   std::vector<BenchRow> rows;
@@ -123,7 +127,10 @@ int runBench(const Args& args) {
     for (const BenchRun& run : runs) {
       const std::string key = e.name + "|" + run.method + "|" + run.budget;
       if (done.count(key)) continue;
-      if (!obs) obs = suiteObservation(e, data, width, height);
+      if (!obs) {
+        obs = suiteObservation(e, data, width, height);
+        if (unknown_contrast) obs->contrast.reset();
+      }
       ++step;
       std::fprintf(stderr, "[%zu/%zu] %-18s %-10s %-8s ...\n", step, total, e.name.c_str(), run.method.c_str(), run.budget.c_str());
       BenchRow row = runBench(*obs, e.group, e.name, e.what, run, out + "/runs/" + e.name + "/" + runFolder(run));

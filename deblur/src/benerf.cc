@@ -262,7 +262,10 @@ BenerfProblem<T>::BenerfProblem(const Observation& obs, const BenerfOptions& opt
     known_contrast_ = true;
   }
   normalised_ = !known_contrast_ || options.event_form == BenerfOptions::EventForm::kNormalised;
-  beta_ = options.beta >= 0 ? options.beta : (normalised_ ? 2.0 : 0.1);
+  // The presets are the paper's β at its 1,024 event pixels per step. The normalised term is a mean
+  // over the batch of the squared differences of two unit vectors, so it shrinks as 1 / pixels:
+  // its β grows with them to keep the same weight (the direct term is a plain mean and does not).
+  beta_ = options.beta >= 0 ? options.beta : (normalised_ ? 2.0 * std::max(1, options.event_rays) / 1024.0 : 0.1);
   // The blur term is in linear intensity and the event term in log intensity, so their balance
   // shifts with the frame's brightness m as m^2: below options.dim_frame the blur term is weighed as
   // if the frame were that bright.

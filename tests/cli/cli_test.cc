@@ -358,6 +358,26 @@ TEST(Cli, BenchKeepsFinishedRunsWhenALaterOneFailsAndResumes) {
   EXPECT_FALSE(test::fs::exists(dir / "x"));
 }
 
+TEST(Cli, BenchWithUnknownContrastHidesTheThresholdsFromEveryMethod) {
+  ScratchDir dir;
+  const std::string common = "bench --suite hard --scenes hard_blur2 --size 48x32 --methods edi,benerf --budgets 12 --threads 1 --data " + (dir / "suite");
+  ASSERT_EQ(runEvkit(common + " --out " + (dir / "known"), dir).exit_code, 0);
+  const RunResult r = runEvkit(common + " --unknown-contrast --out " + (dir / "unknown"), dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  // The same observation (contrast.txt is there), but EDI searches c and BeNeRF normalises its
+  // events, with the real-data weight: the paper's 2 at 1,024 event pixels, 4 at fast's 2,048.
+  EXPECT_TRUE(test::fs::exists(dir / "suite/hard_blur2/contrast.txt"));
+  EXPECT_NE(test::readText(dir / "known/runs/hard_blur2/edi/summary.json").find("\"contrast_searched\": 0"), std::string::npos);
+  EXPECT_NE(test::readText(dir / "unknown/runs/hard_blur2/edi/summary.json").find("\"contrast_searched\": 1"), std::string::npos);
+  const std::string known = test::readText(dir / "known/runs/hard_blur2/benerf_12it/summary.json");
+  const std::string unknown = test::readText(dir / "unknown/runs/hard_blur2/benerf_12it/summary.json");
+  EXPECT_NE(known.find("\"events_normalised\": 0"), std::string::npos) << known;
+  EXPECT_NE(known.find("\"beta\": 0.1"), std::string::npos) << known;
+  EXPECT_NE(unknown.find("\"events_normalised\": 1"), std::string::npos) << unknown;
+  EXPECT_NE(unknown.find("\"beta\": 4"), std::string::npos) << unknown;
+  EXPECT_NE(test::readText(dir / "unknown/results.md").find("thresholds not given to the methods"), std::string::npos);
+}
+
 TEST(Cli, DemoDeblursTheDefaultSceneWithEveryMethod) {
   ScratchDir dir;
   const RunResult r = runEvkit("demo --size 64x48 --blur-px 6 --budget 3 --threads 1 --out " + (dir / "demo"), dir);

@@ -153,6 +153,27 @@ TEST(Benerf, WholePipelineGradientsMatchCentralDifferencesOnADimFrame) {
   checkWholePipeline(tinyOptions(), false, 0.05);
 }
 
+// The paper's β presets hold at its 1,024 event pixels per step; the normalised term is a mean over
+// the batch's pixels of squared differences of unit vectors (it falls as 1 / pixels), so its β
+// grows with them. The direct term is a plain mean: its β stays.
+TEST(Benerf, TheNormalisedEventWeightFollowsTheEventPixels) {
+  Observation obs = makeObservation(24, 18, 4, 3);
+  BenerfOptions o = tinyOptions();
+  o.beta = -1;
+  for (const int pixels : {1024, 2048, 512}) {
+    o.event_rays = pixels;
+    EXPECT_DOUBLE_EQ(BenerfProblem<float>(obs, o, 3).beta(), 0.1);  // contrast.txt: direct
+  }
+  obs.contrast.reset();
+  const std::vector<std::pair<int, double>> expected = {{1024, 2.0}, {2048, 4.0}, {512, 1.0}};
+  for (const auto& [pixels, beta] : expected) {
+    o.event_rays = pixels;
+    const BenerfProblem<float> problem(obs, o, 3);
+    EXPECT_TRUE(problem.normalisedEvents());
+    EXPECT_DOUBLE_EQ(problem.beta(), beta) << pixels << " event pixels";
+  }
+}
+
 TEST(Benerf, ViewTargetsMustMatchTheViewsAndTheFrame) {
   const Observation obs = makeObservation(24, 18, 4, 3);
   BenerfProblem<float> problem(obs, tinyOptions(), 3);

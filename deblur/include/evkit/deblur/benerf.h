@@ -74,7 +74,10 @@ struct BenerfOptions {
   enum class EventForm { kAuto, kDirect, kNormalised };
   EventForm event_form = EventForm::kAuto;
   // Weight of the event term; < 0: by form, the paper's presets: 0.1 direct (synthetic data), 2
-  // normalised (real data). The direct form's accumulated events are off the true log change by up
+  // normalised (real data) at the paper's 1,024 event pixels per step, scaled with event_rays (the
+  // normalised term is a mean of squared differences of unit vectors, so it falls as 1 / pixels:
+  // 4 at `fast`'s 2,048; measured without contrast.txt on the standard suite at `fast`, BENCHMARKS.md:
+  // β 2 -> 33.5 dB, 4 -> 34.4, 6 -> 34.4). The direct form's accumulated events are off the true log change by up
   // to a threshold at each end of the window; with 0.1 the exact blurry frame weighs more (measured
   // on the standard suite at `fast`, BENCHMARKS.md: 0.1 -> 34.7 dB, 0.25 -> 34.5, 1 -> 33.3, 0.05
   // lost planes_blur40).
