@@ -111,11 +111,25 @@ BenerfOptions benerfBudget(const std::string& name) {
   return o;
 }
 
-double measureBlurLength(const Observation& obs) {
-  EdiDeblurrer edi{EdiOptions{}};
+double measureBlurLength(const Observation& obs) { return measureBlur(obs, obs.contrast).blur_px; }
+
+BlurMeasurement measureBlur(const Observation& obs, const std::optional<std::pair<double, double>>& contrast) {
+  EdiOptions edi_options;
+  edi_options.use_observation_contrast = false;
+  if (contrast) {
+    edi_options.contrast_on = contrast->first;
+    edi_options.contrast_off = contrast->second;
+  }
+  EdiDeblurrer edi{edi_options};
   DeblurRequest request;
   request.times_us = {obs.blurry.midExposure()};
   const DeblurResult r = edi.run(obs, request);
+  BlurMeasurement m;
+  m.c_on = r.parameters.at("contrast_on");
+  m.c_off = r.parameters.at("contrast_off");
+  m.searched = r.parameters.at("contrast_searched") != 0;
+  const double margin = 0.01 * (edi_options.search_max - edi_options.search_min);
+  m.inside = m.searched && m.c_on > edi_options.search_min + margin && m.c_on < edi_options.search_max - margin;
   const cv::Mat grey = toGrey(r.frames.front().image);  // frames are float32
   const LogMapping log;
   cv::Mat L(grey.size(), CV_32F);
@@ -131,9 +145,9 @@ double measureBlurLength(const Observation& obs) {
   }
   const EventSpan ev = obs.events.sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us + 1);
   double variation = 0;
-  for (size_t i = 0; i < ev.size(); ++i) variation += ev.p[i] > 0 ? r.parameters.at("contrast_on") : r.parameters.at("contrast_off");
-  if (!(gradient > 0)) return 0;
-  return variation / (2.0 / std::numbers::pi * gradient);
+  for (size_t i = 0; i < ev.size(); ++i) variation += ev.p[i] > 0 ? m.c_on : m.c_off;
+  m.blur_px = gradient > 0 ? variation / (2.0 / std::numbers::pi * gradient) : 0.0;
+  return m;
 }
 
 int virtualViewsFor(double blur_px) {
@@ -256,9 +270,9 @@ BenerfProblem<T>::BenerfProblem(const Observation& obs, const BenerfOptions& opt
   } else {
     throw Error("benerf: unknown field '" + options.field + "' (known: hash, mlp)");
   }
-  if (obs.contrast) {
-    c_on_ = obs.contrast->first;
-    c_off_ = obs.contrast->second;
+  if (const auto& thresholds = options.contrast ? options.contrast : obs.contrast) {
+    c_on_ = thresholds->first;
+    c_off_ = thresholds->second;
     known_contrast_ = true;
   }
   normalised_ = !known_contrast_ || options.event_form == BenerfOptions::EventForm::kNormalised;
@@ -699,7 +713,7 @@ const Frame* midGroundTruth(const Observation& obs) {
 DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& request) {
   const auto start = std::chrono::steady_clock::now();
   DeblurResult result;
-  const BenerfOptions& o = options_;
+  BenerfOptions o = options_;
   const int saved_threads = omp_get_max_threads();
   if (o.threads > 0) omp_set_num_threads(o.threads);
   struct RestoreThreads {
@@ -709,9 +723,16 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
 
   int views = o.virtual_views;
   double blur_px = 0;
-  if (views <= 0 || o.init == BenerfOptions::Init::kEvents) {
-    blur_px = measureBlurLength(obs);
+  if (!o.contrast) o.contrast = obs.contrast;
+  const bool estimate = !o.contrast && o.estimate_contrast && o.event_form == BenerfOptions::EventForm::kAuto;
+  if (views <= 0 || o.init == BenerfOptions::Init::kEvents || estimate) {
+    const BlurMeasurement m = measureBlur(obs, o.contrast);
+    blur_px = m.blur_px;
     result.parameters["blur_px_measured"] = blur_px;
+    if (estimate && m.inside) {
+      o.contrast = std::make_pair(m.c_on, m.c_off);
+      result.parameters["contrast_estimated"] = m.c_on;
+    }
   }
   if (views <= 0) views = virtualViewsFor(blur_px);
   BenerfProblem<float> problem(obs, o, views);
@@ -962,6 +983,14 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
       o.event_rays = settingInt(key, value, 0);
     } else if (key == "samples") {
       o.samples = settingInt(key, value, 2);
+    } else if (key == "contrast") {
+      const size_t comma = value.find(',');
+      const double on = number(key, value.substr(0, comma));
+      const double off = comma == std::string::npos ? on : number(key, value.substr(comma + 1));
+      if (!(on > 0) || !(off > 0)) throw Error("benerf: contrast must be positive (C or C_on,C_off)");
+      o.contrast = std::make_pair(on, off);
+    } else if (key == "estimate_contrast") {
+      o.estimate_contrast = number(key, value) != 0;
     } else if (key == "levels") {
       o.hash.grid.levels = settingInt(key, value, 1);
     } else if (key == "features") {
@@ -1011,7 +1040,7 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
       o.log.lin_log = number(key, value) != 0;
     } else {
       throw Error("benerf: unknown setting '" + key +
-                  "' (known: budget, preset, field, iterations, views, knots, trajectory, init, alpha, beta, normalise, windows, prefit, dim_frame, rays, blur_rays, event_rays, samples, levels, "
+                  "' (known: budget, preset, field, iterations, views, knots, trajectory, init, alpha, beta, normalise, contrast, estimate_contrast, windows, prefit, dim_frame, rays, blur_rays, event_rays, samples, levels, "
                   "features, table, resolution, depth_scale, coarse_to_fine, field_lr, knot_lr, lr_final, seed, threads, checkpoint, resume, stop_after, lin_log)");
     }
   }

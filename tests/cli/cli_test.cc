@@ -360,22 +360,43 @@ TEST(Cli, BenchKeepsFinishedRunsWhenALaterOneFailsAndResumes) {
 
 TEST(Cli, BenchWithUnknownContrastHidesTheThresholdsFromEveryMethod) {
   ScratchDir dir;
-  const std::string common = "bench --suite hard --scenes hard_blur2 --size 48x32 --methods edi,benerf --budgets 12 --threads 1 --data " + (dir / "suite");
+  const std::string common = "bench --suite all --scenes hard_blur2,planes_blur15 --size 48x32 --methods edi,benerf --budgets 12 --threads 1 --data " +
+                             (dir / "suite");
   ASSERT_EQ(runEvkit(common + " --out " + (dir / "known"), dir).exit_code, 0);
   const RunResult r = runEvkit(common + " --unknown-contrast --out " + (dir / "unknown"), dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
-  // The same observation (contrast.txt is there), but EDI searches c and BeNeRF normalises its
-  // events, with the real-data weight: the paper's 2 at 1,024 event pixels, 4 at fast's 2,048.
-  EXPECT_TRUE(test::fs::exists(dir / "suite/hard_blur2/contrast.txt"));
-  EXPECT_NE(test::readText(dir / "known/runs/hard_blur2/edi/summary.json").find("\"contrast_searched\": 0"), std::string::npos);
-  EXPECT_NE(test::readText(dir / "unknown/runs/hard_blur2/edi/summary.json").find("\"contrast_searched\": 1"), std::string::npos);
-  const std::string known = test::readText(dir / "known/runs/hard_blur2/benerf_12it/summary.json");
-  const std::string unknown = test::readText(dir / "unknown/runs/hard_blur2/benerf_12it/summary.json");
-  EXPECT_NE(known.find("\"events_normalised\": 0"), std::string::npos) << known;
-  EXPECT_NE(known.find("\"beta\": 0.1"), std::string::npos) << known;
-  EXPECT_NE(unknown.find("\"events_normalised\": 1"), std::string::npos) << unknown;
-  EXPECT_NE(unknown.find("\"beta\": 4"), std::string::npos) << unknown;
   EXPECT_NE(test::readText(dir / "unknown/results.md").find("thresholds not given to the methods"), std::string::npos);
+  const auto summary = [&](const std::string& run, const std::string& scene, const std::string& method) {
+    return test::readText(dir / (run + "/runs/" + scene + "/" + method + "/summary.json"));
+  };
+  for (const std::string scene : {"hard_blur2", "planes_blur15"}) {
+    // The same observations (contrast.txt is there): with the flag EDI searches c.
+    EXPECT_TRUE(test::fs::exists(dir / ("suite/" + scene + "/contrast.txt")));
+    EXPECT_NE(summary("known", scene, "edi").find("\"contrast_searched\": 0"), std::string::npos);
+    EXPECT_NE(summary("unknown", scene, "edi").find("\"contrast_searched\": 1"), std::string::npos);
+    const std::string known = summary("known", scene, "benerf_12it");
+    EXPECT_NE(known.find("\"events_normalised\": 0"), std::string::npos) << known;
+    EXPECT_NE(known.find("\"beta\": 0.1"), std::string::npos) << known;
+    EXPECT_EQ(known.find("contrast_estimated"), std::string::npos) << known;
+  }
+  // hard_blur2 (2 px of blur at 48 x 32): EDI's search runs to the end of its range, so BeNeRF
+  // normalises its events, with the real-data weight (the paper's 2 at 1,024 event pixels, 4 at
+  // fast's 2,048).
+  EXPECT_NE(summary("unknown", "hard_blur2", "edi").find("\"contrast_on\": 0.5"), std::string::npos);
+  const std::string normalised = summary("unknown", "hard_blur2", "benerf_12it");
+  EXPECT_NE(normalised.find("\"events_normalised\": 1"), std::string::npos) << normalised;
+  EXPECT_NE(normalised.find("\"beta\": 4"), std::string::npos) << normalised;
+  EXPECT_EQ(normalised.find("contrast_estimated"), std::string::npos) << normalised;
+  // planes_blur15: the search lands inside its range, and BeNeRF uses its c in the direct form.
+  const std::string edi = summary("unknown", "planes_blur15", "edi");
+  const size_t at = edi.find("\"contrast_on\": ");
+  ASSERT_NE(at, std::string::npos) << edi;
+  const double c = std::stod(edi.substr(at + 15));
+  EXPECT_GT(c, 0.11);
+  EXPECT_LT(c, 0.49);
+  const std::string direct = summary("unknown", "planes_blur15", "benerf_12it");
+  EXPECT_NE(direct.find("\"events_normalised\": 0"), std::string::npos) << direct;
+  EXPECT_NE(direct.find("\"contrast_estimated\": " + edi.substr(at + 15, 6)), std::string::npos) << direct;
 }
 
 TEST(Cli, DemoDeblursTheDefaultSceneWithEveryMethod) {

@@ -174,6 +174,34 @@ TEST(Benerf, TheNormalisedEventWeightFollowsTheEventPixels) {
   }
 }
 
+// Thresholds: the `contrast` setting over contrast.txt; without either, EDI's search, which is
+// trusted only inside its range.
+TEST(Benerf, ThresholdsComeFromTheSettingsContrastTxtOrEdisSearch) {
+  Observation obs = makeObservation(64, 48, 8, 1);  // C = 0.2 in contrast.txt
+  const BlurMeasurement given = measureBlur(obs, obs.contrast);
+  EXPECT_FALSE(given.searched);
+  EXPECT_FALSE(given.inside);
+  EXPECT_DOUBLE_EQ(given.c_on, 0.2);
+  EXPECT_DOUBLE_EQ(given.blur_px, measureBlurLength(obs));
+  const BlurMeasurement searched = measureBlur(obs, std::nullopt);
+  EXPECT_TRUE(searched.searched);
+  EXPECT_TRUE(searched.inside);
+  EXPECT_NEAR(searched.c_on, 0.2, 0.05);
+  EXPECT_NEAR(searched.blur_px, given.blur_px, 0.2 * given.blur_px);
+
+  BenerfOptions o = tinyOptions();
+  o.beta = -1;
+  obs.contrast.reset();
+  EXPECT_TRUE((BenerfProblem<float>(obs, o, 3).normalisedEvents()));
+  o.contrast = std::make_pair(0.25, 0.3);
+  const BenerfProblem<float> with_setting(obs, o, 3);
+  EXPECT_FALSE(with_setting.normalisedEvents());
+  EXPECT_DOUBLE_EQ(with_setting.beta(), 0.1);
+  EXPECT_THROW(makeBenerf({{"contrast", "-0.2"}}), Error);
+  EXPECT_THROW(makeBenerf({{"contrast", "0.2,x"}}), Error);
+  EXPECT_NO_THROW(makeBenerf({{"contrast", "0.2,0.3"}, {"estimate_contrast", "0"}}));
+}
+
 TEST(Benerf, ViewTargetsMustMatchTheViewsAndTheFrame) {
   const Observation obs = makeObservation(24, 18, 4, 3);
   BenerfProblem<float> problem(obs, tinyOptions(), 3);

@@ -24,6 +24,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <random>
 #include <string>
 #include <vector>
@@ -68,6 +69,13 @@ struct BenerfOptions {
   // at `fast` (BENCHMARKS.md): 1 -> 34.6 dB, 32 -> 34.8, 128 -> 35.3, 256 -> 35.0, 2048 slower and
   // no better.
   int windows = 128;
+  // Thresholds (C_on, C_off) of the event term, over contrast.txt. With neither, and the form kAuto,
+  // EDI's search estimates c (estimate_contrast): a c inside the search's range is used in the
+  // direct form; at an end of the range (the search's energy was monotonic, as on low-texture
+  // scenes) the events are normalised. Measured without thresholds at `fast` (BENCHMARKS.md):
+  // standard suite 34.41 -> 34.99 dB, noisy 34.48 -> 34.69.
+  std::optional<std::pair<double, double>> contrast;
+  bool estimate_contrast = true;
   // The event term's form: kDirect compares C-weighted events with the log change (the authors'
   // code on synthetic data; needs known thresholds), kNormalised compares both L2-normalised over
   // the batch (the paper; real data); kAuto: direct when the observation has contrast.txt.
@@ -124,6 +132,14 @@ BenerfOptions benerfBudget(const std::string& name);
 // times the directional gradient; so length ~ c N_events / ((2/pi) sum |grad log L|), with L a
 // latent frame at mid-exposure from EDI.
 double measureBlurLength(const Observation& obs);
+// The same with the thresholds given (none: EDI searches c), and the thresholds it used.
+struct BlurMeasurement {
+  double blur_px = 0;
+  double c_on = 0, c_off = 0;
+  bool searched = false;  // c from EDI's search
+  bool inside = false;    // ... and not at an end of the search's range
+};
+BlurMeasurement measureBlur(const Observation& obs, const std::optional<std::pair<double, double>>& contrast);
 // n from the blur length: about one view per 2 px of motion, within [5, 19].
 int virtualViewsFor(double blur_px);
 
