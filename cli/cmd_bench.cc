@@ -64,7 +64,7 @@ int runBench(const Args& args) {
       "set", po::value<std::vector<std::string>>()->composing(), "METHOD.KEY=VALUE added to every run of METHOD (e.g. benerf.seed=2)")(
       "threads", po::value<int>(), "BeNeRF threads (default: all cores)")(
       "unknown-contrast", po::bool_switch(),
-      "the methods are not given the thresholds (contrast.txt), as with real data: EDI searches c, BeNeRF compares normalised events")(
+      "the methods are not given the thresholds (contrast.txt), as with real data: EDI searches c, BeNeRF estimates them the same way")(
       "rerun", po::bool_switch(), "run again what OUT/results.csv already holds");
   po::positional_options_description pos;
   po::variables_map vm;

@@ -84,7 +84,7 @@ int runDeblur(const Args& args) {
   addInputOptions(opts);
   opts.add_options()("method", po::value<std::string>()->default_value("edi"), "blurry, edi or benerf")(
       "set", po::value<std::vector<std::string>>()->composing(), "method setting KEY=VALUE (repeatable; edi: contrast, search, c_min, c_max, margin_us; benerf: budget=fast|balanced|quality|SECONDS, "
-      "preset=synthetic|real, field=hash|mlp, iterations, views, checkpoint, resume, ... see the README)")(
+      "preset=synthetic|real, contrast=C[,C_off], field=hash|mlp, iterations, views, checkpoint, resume, ... see the README)")(
       "out", po::value<std::string>()->required(), "output folder");
   po::positional_options_description pos;
   pos.add("observation", 1);
