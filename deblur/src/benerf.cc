@@ -984,11 +984,7 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
     } else if (key == "samples") {
       o.samples = settingInt(key, value, 2);
     } else if (key == "contrast") {
-      const size_t comma = value.find(',');
-      const double on = number(key, value.substr(0, comma));
-      const double off = comma == std::string::npos ? on : number(key, value.substr(comma + 1));
-      if (!(on > 0) || !(off > 0)) throw Error("benerf: contrast must be positive (C or C_on,C_off)");
-      o.contrast = std::make_pair(on, off);
+      o.contrast = contrastSetting("benerf", value);
     } else if (key == "estimate_contrast") {
       o.estimate_contrast = number(key, value) != 0;
     } else if (key == "levels") {

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <tuple>
 
 #include "evkit/deblur/benerf.h"
 #include "evkit/deblur/edi.h"
@@ -34,10 +35,7 @@ std::unique_ptr<Deblurrer> makeEdi(const MethodSettings& settings) {
   EdiOptions o;
   for (const auto& [key, value] : settings) {
     if (key == "contrast") {
-      const size_t comma = value.find(',');
-      o.contrast_on = settingNumber("edi", key, value.substr(0, comma));
-      o.contrast_off = comma == std::string::npos ? *o.contrast_on : settingNumber("edi", key, value.substr(comma + 1));
-      if (!(*o.contrast_on > 0) || !(*o.contrast_off > 0)) throw Error("edi: contrast must be positive");
+      std::tie(o.contrast_on, o.contrast_off) = contrastSetting("edi", value);
     } else if (key == "search") {
       o.use_observation_contrast = settingNumber("edi", key, value) == 0;
     } else if (key == "c_min") {
@@ -64,6 +62,14 @@ double settingNumber(const std::string& method, const std::string& key, const st
   } catch (const std::exception&) {
   }
   throw Error(method + ": setting " + key + "=" + value + " is not a number");
+}
+
+std::pair<double, double> contrastSetting(const std::string& method, const std::string& value) {
+  const size_t comma = value.find(',');
+  const double on = settingNumber(method, "contrast", value.substr(0, comma));
+  const double off = comma == std::string::npos ? on : settingNumber(method, "contrast", value.substr(comma + 1));
+  if (!(on > 0) || !(off > 0)) throw Error(method + ": contrast must be positive (contrast=C or C_on,C_off)");
+  return {on, off};
 }
 
 std::vector<std::string> deblurrerNames() { return {"blurry", "edi", "benerf"}; }

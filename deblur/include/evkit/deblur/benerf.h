@@ -73,7 +73,7 @@ struct BenerfOptions {
   // EDI's search estimates c (estimate_contrast): a c inside the search's range is used in the
   // direct form; at an end of the range (the search's energy was monotonic, as on low-texture
   // scenes) the events are normalised. Measured without thresholds at `fast` (BENCHMARKS.md):
-  // standard suite 34.41 -> 34.99 dB, noisy 34.48 -> 34.69.
+  // standard suite 34.41 -> 34.97 dB, noisy 34.48 -> 34.72.
   std::optional<std::pair<double, double>> contrast;
   bool estimate_contrast = true;
   // The event term's form: kDirect compares C-weighted events with the log change (the authors'

@@ -8,6 +8,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "evkit/deblur/observation.h"
@@ -37,6 +38,8 @@ using MethodSettings = std::map<std::string, std::string>;
 // A setting's value as a finite number; throws evkit::Error "<method>: setting KEY=VALUE is not a
 // number" otherwise.
 double settingNumber(const std::string& method, const std::string& key, const std::string& value);
+// A `contrast=C[,C_off]` setting as (C_on, C_off), both positive; throws evkit::Error otherwise.
+std::pair<double, double> contrastSetting(const std::string& method, const std::string& value);
 
 class Deblurrer {
  public:
