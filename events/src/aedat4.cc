@@ -380,12 +380,9 @@ class Aedat4Writer final : public EventWriter {
     }
     codec_ = c == Compression::kZstd ? Codec::kZstd : c == Compression::kNone ? Codec::kNone : Codec::kLz4;
     level_ = codec_ == Codec::kZstd ? std::max(1, options.level) : 0;
-    file_ = std::fopen(out_.temporaryPath().c_str(), "wb");
+    file_ = openFile(out_.temporaryPath(), "wb");
     if (!file_) throwInFile(path, "cannot open for writing");
     writeHeader();
-  }
-  ~Aedat4Writer() override {
-    if (file_) std::fclose(file_);
   }
 
   void write(const EventSpan& events) override {
@@ -442,18 +439,14 @@ class Aedat4Writer final : public EventWriter {
     put(packed_.data(), packed_.size());
     uint8_t le[8];
     for (int i = 0; i < 8; ++i) le[i] = static_cast<uint8_t>(static_cast<uint64_t>(table_at) >> (8 * i));
-    bool ok = std::fseek(file_, static_cast<long>(placeholder_at_), SEEK_SET) == 0 && std::fwrite(le, 1, 8, file_) == 8;
+    bool ok = std::fseek(file_.get(), static_cast<long>(placeholder_at_), SEEK_SET) == 0 && std::fwrite(le, 1, 8, file_.get()) == 8;
     // Unknown sensor: the bounding box of the events (sizeX, sizeY alternate in the XML).
     for (size_t i = 0; i < size_patches_.size(); ++i) {
       const std::string text = padded(i % 2 == 0 ? max_x_ + 1 : max_y_ + 1);
-      ok = ok && std::fseek(file_, static_cast<long>(size_patches_[i]), SEEK_SET) == 0 &&
-           std::fwrite(text.data(), 1, 5, file_) == 5;
+      ok = ok && std::fseek(file_.get(), static_cast<long>(size_patches_[i]), SEEK_SET) == 0 &&
+           std::fwrite(text.data(), 1, 5, file_.get()) == 5;
     }
-    if (!ok || std::fclose(file_) != 0) {
-      file_ = nullptr;
-      throwInFile(out_.finalPath(), "write failed (disk full?)");
-    }
-    file_ = nullptr;
+    if (!closeFile(file_) || !ok) throwInFile(out_.finalPath(), "write failed (disk full?)");
     out_.commit();
   }
 
@@ -545,7 +538,7 @@ class Aedat4Writer final : public EventWriter {
   }
 
   void put(const void* data, size_t n) {
-    if (std::fwrite(data, 1, n, file_) != n) throwInFile(out_.finalPath(), "write failed (disk full?)");
+    if (std::fwrite(data, 1, n, file_.get()) != n) throwInFile(out_.finalPath(), "write failed (disk full?)");
     offset_ += static_cast<int64_t>(n);
   }
 
@@ -553,7 +546,7 @@ class Aedat4Writer final : public EventWriter {
   SensorSize sensor_;
   Codec codec_ = Codec::kLz4;
   int level_ = 0;
-  std::FILE* file_ = nullptr;
+  UniqueFile file_;
   int64_t offset_ = 0;
   int64_t placeholder_at_ = 0;
   std::vector<fb4::Event> pending_;

@@ -11,18 +11,14 @@ namespace evkit::detail {
 BinaryFile::BinaryFile(std::string path) : path_(std::move(path)) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path_, ec)) throwInFile(path_, "no such file");
-  file_ = std::fopen(path_.c_str(), "rb");
+  file_ = openFile(path_, "rb");
   if (!file_) throwInFile(path_, "cannot open for reading");
   size_ = static_cast<int64_t>(std::filesystem::file_size(path_, ec));
-  std::setvbuf(file_, nullptr, _IOFBF, 1 << 16);
-}
-
-BinaryFile::~BinaryFile() {
-  if (file_) std::fclose(file_);
+  std::setvbuf(file_.get(), nullptr, _IOFBF, 1 << 16);
 }
 
 size_t BinaryFile::read(void* out, size_t n) {
-  const size_t got = std::fread(out, 1, n, file_);
+  const size_t got = std::fread(out, 1, n, file_.get());
   offset_ += static_cast<int64_t>(got);
   return got;
 }
@@ -33,7 +29,7 @@ void BinaryFile::readExact(void* out, size_t n, const char* what) {
 }
 
 void BinaryFile::seek(int64_t offset) {
-  if (offset < 0 || offset > size_ || std::fseek(file_, static_cast<long>(offset), SEEK_SET) != 0) {
+  if (offset < 0 || offset > size_ || std::fseek(file_.get(), static_cast<long>(offset), SEEK_SET) != 0) {
     failAt(offset, "seek outside the file");
   }
   offset_ = offset;
@@ -43,7 +39,7 @@ bool BinaryFile::readLine(std::string& line, size_t max_length) {
   line.clear();
   const int64_t start = offset_;
   int c;
-  while ((c = std::fgetc(file_)) != EOF) {
+  while ((c = std::fgetc(file_.get())) != EOF) {
     ++offset_;
     if (c == '\n') {
       if (!line.empty() && line.back() == '\r') line.pop_back();
@@ -57,9 +53,9 @@ bool BinaryFile::readLine(std::string& line, size_t max_length) {
 }
 
 int BinaryFile::peek() {
-  const int c = std::fgetc(file_);
+  const int c = std::fgetc(file_.get());
   if (c == EOF) return -1;
-  std::ungetc(c, file_);
+  std::ungetc(c, file_.get());
   return c;
 }
 

@@ -7,12 +7,13 @@
 #include <string>
 #include <vector>
 
+#include "unique_file.h"
+
 namespace evkit::detail {
 
 class BinaryFile {
  public:
   explicit BinaryFile(std::string path);
-  ~BinaryFile();
   BinaryFile(const BinaryFile&) = delete;
   BinaryFile& operator=(const BinaryFile&) = delete;
 
@@ -38,7 +39,7 @@ class BinaryFile {
 
  private:
   std::string path_;
-  std::FILE* file_ = nullptr;
+  UniqueFile file_;
   int64_t size_ = 0;
   int64_t offset_ = 0;
 };

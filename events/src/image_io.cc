@@ -75,17 +75,14 @@ struct FrameFolderWriter::State {
   std::ostringstream csv;
 };
 
-FrameFolderWriter::FrameFolderWriter(const std::string& dir) : state_(new State(dir)) {
+FrameFolderWriter::FrameFolderWriter(const std::string& dir) : state_(std::make_unique<State>(dir)) {
   std::error_code ec;
   fs::create_directories(state_->out.temporaryPath(), ec);
-  if (ec) {
-    delete state_;
-    throwInFile(dir, "cannot create folder: " + ec.message());
-  }
+  if (ec) throwInFile(dir, "cannot create folder: " + ec.message());
   state_->csv << "index,exposure_start_us,exposure_end_us,file\n";
 }
 
-FrameFolderWriter::~FrameFolderWriter() { delete state_; }
+FrameFolderWriter::~FrameFolderWriter() = default;
 
 void FrameFolderWriter::add(const Frame& frame) {
   char name[32];

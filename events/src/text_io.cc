@@ -13,6 +13,7 @@
 #include "evkit/events/image_io.h"
 #include "formats.h"
 #include "evkit/events/decimal.h"
+#include "unique_file.h"
 
 namespace evkit::detail {
 namespace fs = std::filesystem;
@@ -105,7 +106,7 @@ std::string snippet(const char* begin, const char* end) {
 class TextReader final : public EventReader {
  public:
   explicit TextReader(std::string path) : path_(std::move(path)) {
-    file_ = std::fopen(path_.c_str(), "rb");
+    file_ = openFile(path_, "rb");
     if (!file_) throwInFile(path_, "cannot open for reading");
     // No bigger than the file needs (plus the spare byte for a missing final newline).
     std::error_code ec;
@@ -123,9 +124,6 @@ class TextReader final : public EventReader {
     readOptionalHeader();
     const std::string frames = frameFolderFor(path_);
     if (fs::is_regular_file(frames + "/frames.csv")) pending_frames_ = readFrameFolder(frames);
-  }
-  ~TextReader() override {
-    if (file_) std::fclose(file_);
   }
 
  protected:
@@ -223,9 +221,9 @@ class TextReader final : public EventReader {
     }
     complete_end_ = 0;  // whatever is left is at most a partial line
     if (!eof_) {
-      const size_t got = std::fread(buffer_.data() + len_, 1, buffer_.size() - 1 - len_, file_);
+      const size_t got = std::fread(buffer_.data() + len_, 1, buffer_.size() - 1 - len_, file_.get());
       if (got == 0) {
-        if (std::ferror(file_)) throwAtByte(path_, bytes_before_ + static_cast<int64_t>(len_), "read error");
+        if (std::ferror(file_.get())) throwAtByte(path_, bytes_before_ + static_cast<int64_t>(len_), "read error");
         eof_ = true;
       }
       len_ += got;
@@ -280,7 +278,7 @@ class TextReader final : public EventReader {
   }
 
   std::string path_;
-  std::FILE* file_ = nullptr;
+  UniqueFile file_;
   std::vector<char> buffer_;
   size_t pos_ = 0;           // next unread byte
   size_t len_ = 0;           // bytes in the buffer
@@ -298,15 +296,12 @@ class TextReader final : public EventReader {
 class TextWriter final : public EventWriter {
  public:
   TextWriter(const std::string& path, SensorSize sensor) : out_(path) {
-    file_ = std::fopen(out_.temporaryPath().c_str(), "wb");
+    file_ = openFile(out_.temporaryPath(), "wb");
     if (!file_) throwInFile(path, "cannot open for writing");
     buffer_.reserve(kBufferBytes + 256);
     if (sensor.known()) {
       buffer_ += std::to_string(sensor.width) + " " + std::to_string(sensor.height) + "\n";
     }
-  }
-  ~TextWriter() override {
-    if (file_) std::fclose(file_);
   }
 
   void write(const EventSpan& events) override {
@@ -329,22 +324,21 @@ class TextWriter final : public EventWriter {
 
   void close() override {
     flush();
-    if (std::fclose(file_) != 0) throwInFile(out_.finalPath(), "write failed (disk full?)");
-    file_ = nullptr;
+    if (!closeFile(file_)) throwInFile(out_.finalPath(), "write failed (disk full?)");
     if (!frames_.empty()) writeFrameFolder(frameFolderFor(out_.finalPath()), frames_);
     out_.commit();
   }
 
  private:
   void flush() {
-    if (std::fwrite(buffer_.data(), 1, buffer_.size(), file_) != buffer_.size()) {
+    if (std::fwrite(buffer_.data(), 1, buffer_.size(), file_.get()) != buffer_.size()) {
       throwInFile(out_.finalPath(), "write failed (disk full?)");
     }
     buffer_.clear();
   }
 
   AtomicPath out_;
-  std::FILE* file_ = nullptr;
+  UniqueFile file_;
   std::string buffer_;
   std::vector<Frame> frames_;
 };

@@ -1,13 +1,16 @@
 // libFuzzer target for one reader (EVKIT_FUZZ_FORMAT, a format name such as "aedat4"): the input is
 // written to a scratch file and read in full. A reader may reject it with evkit::Error; any other
-// exception, a crash, a sanitizer report, a hang or a huge allocation is a bug.
+// exception, a crash, a sanitizer report, a hang, a huge allocation, a leaked allocation
+// (LeakSanitizer) or a file descriptor still open after the reader is gone is a bug.
 //
 // Built by `cmake -DEVKIT_FUZZ=ON` with clang; run by scripts/fuzz.sh.
 
+#include <dirent.h>
 #include <unistd.h>
 
 #include <cstdint>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <string>
 
@@ -25,6 +28,16 @@ const std::string& scratchPath() {
   return path;
 }
 
+// Open descriptors of this process (the listing's own descriptor excluded).
+int openDescriptors() {
+  DIR* dir = ::opendir("/proc/self/fd");
+  if (!dir) return -1;
+  int count = 0;
+  while (const dirent* entry = ::readdir(dir)) count += entry->d_name[0] != '.';
+  ::closedir(dir);
+  return count - 1;
+}
+
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
@@ -33,11 +46,18 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (!f) return 0;
   std::fwrite(data, 1, size, f);
   std::fclose(f);
+  const int descriptors_before = openDescriptors();
   try {
     const evkit::Recording rec = evkit::readRecording(path, evkit::parseFormat(EVKIT_FUZZ_FORMAT));
     (void)rec;
   } catch (const evkit::Error&) {
     // Rejected with a message: the expected outcome for most inputs.
+  }
+  const int descriptors_after = openDescriptors();
+  if (descriptors_after != descriptors_before) {
+    std::fprintf(stderr, "fuzz: %d file descriptors open before reading, %d after: the reader leaked\n",
+                 descriptors_before, descriptors_after);
+    std::abort();
   }
   return 0;
 }

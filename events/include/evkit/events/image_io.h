@@ -1,6 +1,7 @@
 // Image files, linear (no gamma curve), keeping the bit depth (DESIGN.md §2).
 #pragma once
 
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -29,13 +30,15 @@ class FrameFolderWriter {
  public:
   explicit FrameFolderWriter(const std::string& dir);
   ~FrameFolderWriter();
+  FrameFolderWriter(const FrameFolderWriter&) = delete;
+  FrameFolderWriter& operator=(const FrameFolderWriter&) = delete;
   void add(const Frame& frame);
   size_t count() const { return count_; }
   void close();
 
  private:
   struct State;
-  State* state_;
+  std::unique_ptr<State> state_;
   size_t count_ = 0;
 };
 void writeFrameFolder(const std::string& dir, const std::vector<Frame>& frames);
