@@ -39,6 +39,7 @@ constexpr size_t kChunkCacheBytes = size_t{32} << 20;
 constexpr unsigned kBloscFilter = 32001;           // registered HDF5 filter id of Blosc
 constexpr unsigned kBloscLz4 = 1;                  // Blosc compressor code of LZ4
 constexpr int64_t kMaxMsIndexEntries = 100'000'000;  // > 27 h of recording: no index
+constexpr hsize_t kMaxFrames = 1'000'000;            // 14 h at 20 fps, 17 min at 1 kHz
 
 enum class Layout { kEvkit, kDsec, kEventUtils };
 
@@ -241,8 +242,8 @@ class Hdf5Reader final : public EventReader {
         throwInFile(path_, "frames/images has implausible dimensions");
       }
       const hsize_t n = frame_shape_[0];
-      frame_starts_.resize(n);
-      frame_ends_.resize(n);
+      // A damaged dataspace can claim any count; no recording holds this many frames.
+      if (n > kMaxFrames) throwInFile(path_, "frames/images claims " + std::to_string(n) + " frames");
       for (const char* name : {"frames/exposure_start", "frames/exposure_end"}) {
         H5Handle ds = openDataset(f, name, path_);
         const auto shape = datasetShape(ds.get());
@@ -250,6 +251,7 @@ class Hdf5Reader final : public EventReader {
           throwInFile(path_, std::string(name) + " must hold one value per frame");
         }
         auto& dst = std::strcmp(name, "frames/exposure_start") == 0 ? frame_starts_ : frame_ends_;
+        dst.resize(n);
         readRange(ds.get(), H5T_NATIVE_INT64, 0, n, dst.data(), path_, name);
       }
       H5Handle type(H5Dget_type(images_.get()));
