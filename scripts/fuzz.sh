@@ -58,7 +58,8 @@ for r in "${readers[@]}"; do
   corpus="$work/corpus-$r"
   mkdir -p "$corpus"
   echo "== fuzz $r for ${seconds}s"
-  if ! ASAN_OPTIONS=detect_leaks=1:allocator_may_return_null=0 EVKIT_FUZZ_DIR="$work" \
+  if ! ASAN_OPTIONS=detect_leaks=1:allocator_may_return_null=0 LSAN_OPTIONS=suppressions=tests/fuzz/lsan.supp \
+      EVKIT_FUZZ_DIR="$work" \
       "build-fuzz/tests/fuzz/fuzz_$r" "$corpus" "$seeds/$r" -max_total_time="$seconds" -timeout=10 \
       -malloc_limit_mb=512 -rss_limit_mb=3000 -max_len=262144 -seed="${EVKIT_FUZZ_SEED:-1}" -print_final_stats=1 \
       -artifact_prefix="build-fuzz/artifacts/$r-" > "$work/$r.log" 2>&1; then

@@ -27,6 +27,7 @@
 #include "evkit/events/error.h"
 #include "evkit/events/image_io.h"
 #include "formats.h"
+#include "hdf5_precheck.h"
 #include "hdf5_util.h"
 
 namespace evkit::detail {
@@ -55,16 +56,16 @@ H5Handle openDataset(hid_t file, const std::string& name, const std::string& pat
 
 class Hdf5Reader final : public EventReader {
  public:
-  explicit Hdf5Reader(std::string path) : path_(std::move(path)) {
+  explicit Hdf5Reader(std::string path) : path_(std::move(path)), precheck_(path_) {
     silenceHdf5Errors();
     file_ = H5Handle(H5Fopen(path_.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT));
     if (!file_) throwAtByte(path_, 0, "not a readable HDF5 file (corrupt or truncated?)");
     info_.format = Format::kHdf5;
     const hid_t f = file_.get();
-    if (linkExists(f, "events/t")) {
-      layout_ = attributeExists(f, "evkit_layout") || !linkExists(f, "t_offset") ? Layout::kEvkit : Layout::kDsec;
+    if (exists("events/t")) {
+      layout_ = attributeExists(f, "evkit_layout") || !exists("t_offset") ? Layout::kEvkit : Layout::kDsec;
       openColumns({"events/t", "events/x", "events/y", "events/p"});
-    } else if (linkExists(f, "events/ts")) {
+    } else if (exists("events/ts")) {
       layout_ = Layout::kEventUtils;
       openColumns({"events/ts", "events/xs", "events/ys", "events/ps"});
     } else {
@@ -128,11 +129,34 @@ class Hdf5Reader final : public EventReader {
   }
 
  private:
+  // Whether `name` exists, checking the object header of every group on the way before the
+  // library walks into it (see hdf5_precheck.h).
+  bool exists(const std::string& name) const {
+    for (size_t slash = name.find('/');; slash = name.find('/', slash + 1)) {
+      const std::string prefix = name.substr(0, slash);
+      if (H5Lexists(file_.get(), prefix.c_str(), H5P_DEFAULT) <= 0) return false;
+      checkHeader(file_.get(), prefix, prefix);
+      if (slash == std::string::npos) return true;
+    }
+  }
+
+  void checkHeader(hid_t loc, const std::string& name, const std::string& what) const {
+    H5L_info_t link;
+    if (H5Lget_info(loc, name.c_str(), &link, H5P_DEFAULT) >= 0 && link.type == H5L_TYPE_HARD) {
+      precheck_.checkObjectHeader(link.u.address, "'" + what + "'");
+    }
+  }
+
+  H5Handle open(const std::string& name) const {
+    checkHeader(file_.get(), name, name);
+    return openDataset(file_.get(), name, path_);
+  }
+
   void openColumns(std::initializer_list<const char*> names) {
     size_t i = 0;
     for (const char* name : names) {
       names_[i] = name;
-      columns_[i] = openDataset(file_.get(), name, path_);
+      columns_[i] = open(name);
       const auto shape = datasetShape(columns_[i].get());
       if (shape.size() != 1) throwInFile(path_, std::string("dataset ") + name + " is not one-dimensional");
       if (i == 0) count_ = shape[0];
@@ -143,7 +167,7 @@ class Hdf5Reader final : public EventReader {
       ++i;
     }
     if (layout_ == Layout::kDsec) {
-      H5Handle off = openDataset(file_.get(), "t_offset", path_);
+      H5Handle off = open("t_offset");
       if (H5Dread(off.get(), H5T_NATIVE_INT64, H5S_ALL, H5S_ALL, H5P_DEFAULT, &t_offset_dsec_) < 0) {
         throwInFile(path_, "cannot read t_offset");
       }
@@ -213,10 +237,9 @@ class Hdf5Reader final : public EventReader {
   }
 
   void readTimeIndex() {
-    const hid_t f = file_.get();
     const std::string name = layout_ == Layout::kDsec ? "ms_to_idx" : "events/ms_to_idx";
-    if (layout_ == Layout::kEventUtils || !linkExists(f, name)) return;
-    H5Handle ds = openDataset(f, name, path_);
+    if (layout_ == Layout::kEventUtils || !exists(name)) return;
+    H5Handle ds = open(name);
     const auto shape = datasetShape(ds.get());
     if (shape.size() != 1 || shape[0] > static_cast<hsize_t>(kMaxMsIndexEntries)) return;
     if (layout_ == Layout::kDsec) {
@@ -232,8 +255,8 @@ class Hdf5Reader final : public EventReader {
 
   void readFrameIndex() {
     const hid_t f = file_.get();
-    if (layout_ == Layout::kEvkit && linkExists(f, "frames/images")) {
-      images_ = openDataset(f, "frames/images", path_);
+    if (layout_ == Layout::kEvkit && exists("frames/images")) {
+      images_ = open("frames/images");
       frame_shape_ = datasetShape(images_.get());
       if (frame_shape_.size() != 3 && !(frame_shape_.size() == 4 && frame_shape_[3] == 3)) {
         throwInFile(path_, "frames/images must be (N, H, W) or (N, H, W, 3)");
@@ -245,7 +268,7 @@ class Hdf5Reader final : public EventReader {
       // A damaged dataspace can claim any count; no recording holds this many frames.
       if (n > kMaxFrames) throwInFile(path_, "frames/images claims " + std::to_string(n) + " frames");
       for (const char* name : {"frames/exposure_start", "frames/exposure_end"}) {
-        H5Handle ds = openDataset(f, name, path_);
+        H5Handle ds = open(name);
         const auto shape = datasetShape(ds.get());
         if (shape.size() != 1 || shape[0] != n) {
           throwInFile(path_, std::string(name) + " must hold one value per frame");
@@ -256,7 +279,7 @@ class Hdf5Reader final : public EventReader {
       }
       H5Handle type(H5Dget_type(images_.get()));
       frame_bits_ = H5Tget_size(type.get()) >= 2 ? 16 : 8;
-    } else if (layout_ == Layout::kEventUtils && linkExists(f, "images")) {
+    } else if (layout_ == Layout::kEventUtils && exists("images")) {
       H5Handle group(H5Gopen2(f, "images", H5P_DEFAULT));
       H5G_info_t ginfo;
       if (!group || H5Gget_info(group.get(), &ginfo) < 0) throwInFile(path_, "cannot list /images");
@@ -266,6 +289,7 @@ class Hdf5Reader final : public EventReader {
                                H5P_DEFAULT) < 0) {
           continue;
         }
+        checkHeader(group.get(), name, std::string("images/") + name);
         H5Handle ds(H5Dopen2(group.get(), name, H5P_DEFAULT));
         if (!ds || !attributeExists(ds.get(), "timestamp")) continue;
         H5Handle attr(H5Aopen(ds.get(), "timestamp", H5P_DEFAULT));
@@ -304,7 +328,7 @@ class Hdf5Reader final : public EventReader {
       if (c == 3) cv::cvtColor(raw, raw, cv::COLOR_RGB2BGR);
     } else {
       const std::string& name = event_utils_images_[i].second;
-      H5Handle ds = openDataset(file_.get(), name, path_);
+      H5Handle ds = open(name);
       const auto shape = datasetShape(ds.get());
       if ((shape.size() != 2 && !(shape.size() == 3 && shape[2] == 3)) || shape[0] > 65536 || shape[1] > 65536) {
         throwInFile(path_, name + " must be (H, W) or (H, W, 3)");
@@ -325,6 +349,7 @@ class Hdf5Reader final : public EventReader {
   }
 
   std::string path_;
+  Hdf5Precheck precheck_;
   H5Handle file_;
   Layout layout_ = Layout::kEvkit;
   H5Handle columns_[4];

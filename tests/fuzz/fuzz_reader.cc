@@ -1,11 +1,13 @@
 // libFuzzer target for one reader (EVKIT_FUZZ_FORMAT, a format name such as "aedat4"): the input is
 // written to a scratch file and read in full. A reader may reject it with evkit::Error; any other
 // exception, a crash, a sanitizer report, a hang, a huge allocation, a leaked allocation
-// (LeakSanitizer) or a file descriptor still open after the reader is gone is a bug.
+// (LeakSanitizer), a file descriptor or an HDF5 identifier still open after the reader is gone is a
+// bug.
 //
 // Built by `cmake -DEVKIT_FUZZ=ON` with clang; run by scripts/fuzz.sh.
 
 #include <dirent.h>
+#include <hdf5.h>
 #include <unistd.h>
 
 #include <cstdint>
@@ -57,6 +59,10 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (descriptors_after != descriptors_before) {
     std::fprintf(stderr, "fuzz: %d file descriptors open before reading, %d after: the reader leaked\n",
                  descriptors_before, descriptors_after);
+    std::abort();
+  }
+  if (const ssize_t ids = H5Fget_obj_count(H5F_OBJ_ALL, H5F_OBJ_ALL); ids > 0) {
+    std::fprintf(stderr, "fuzz: %zd HDF5 identifiers left open: the reader leaked\n", ids);
     std::abort();
   }
   return 0;

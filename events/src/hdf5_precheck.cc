@@ -1,0 +1,194 @@
+#include "hdf5_precheck.h"
+
+#include <cstring>
+#include <set>
+#include <vector>
+
+#include "binary_file.h"
+#include "evkit/events/error.h"
+
+namespace evkit::detail {
+namespace {
+
+constexpr uint8_t kSignature[8] = {0x89, 'H', 'D', 'F', '\r', '\n', 0x1a, '\n'};
+constexpr int kContinuation = 0x10;  // object header message types
+constexpr int kSymbolTable = 0x11;
+constexpr uint64_t kMaxChunkBytes = uint64_t{1} << 26;  // 64 MB: real header chunks hold a few kB
+constexpr size_t kMaxChunks = 4096;
+
+uint64_t loadLe(const uint8_t* p, int bytes) {
+  uint64_t v = 0;
+  for (int i = bytes - 1; i >= 0; --i) v = (v << 8) | p[i];
+  return v;
+}
+
+bool undefinedAddress(uint64_t address, int offset_bytes) {
+  return offset_bytes == 8 ? address == ~uint64_t{0} : address == (uint64_t{1} << (8 * offset_bytes)) - 1;
+}
+
+}  // namespace
+
+Hdf5Precheck::Hdf5Precheck(std::string path) : path_(std::move(path)) {
+  BinaryFile file(path_);
+  file_size_ = file.size();
+  // The superblock sits at 0, 512, 1024, 2048, ... (a user block may come first).
+  int64_t at = -1;
+  for (int64_t candidate = 0; candidate + 8 <= file_size_; candidate = candidate == 0 ? 512 : candidate * 2) {
+    uint8_t signature[8];
+    file.seek(candidate);
+    file.readExact(signature, 8, "the HDF5 signature");
+    if (std::memcmp(signature, kSignature, 8) == 0) {
+      at = candidate;
+      break;
+    }
+  }
+  if (at < 0) file.failAt(0, "no HDF5 superblock signature (not an HDF5 file)");
+
+  uint8_t sb[128] = {};
+  file.seek(at);
+  const size_t got = file.read(sb, sizeof(sb));
+  const int version = sb[8];
+  int offset_bytes = 0;
+  size_t fields = 0;  // where the base address starts
+  if (version == 0 || version == 1) {
+    offset_bytes = sb[13];
+    length_bytes_ = sb[14];
+    fields = version == 0 ? 24 : 28;
+  } else if (version == 2 || version == 3) {
+    offset_bytes = sb[9];
+    length_bytes_ = sb[10];
+    fields = 12;
+  } else {
+    file.failAt(at + 8, "unknown HDF5 superblock version " + std::to_string(version));
+  }
+  const auto usable = [](int bytes) { return bytes == 2 || bytes == 4 || bytes == 8; };
+  if (!usable(offset_bytes) || !usable(length_bytes_)) {
+    file.failAt(at + 9, "HDF5 superblock with " + std::to_string(offset_bytes) + "-byte addresses and " +
+                            std::to_string(length_bytes_) + "-byte lengths");
+  }
+  // v0/v1: base, free space, end of file, driver info, then the root group's symbol table entry
+  // (link name offset, object header address); v2/v3: base, extension, end of file, root group.
+  const size_t root_field = fields + static_cast<size_t>(offset_bytes) * (version <= 1 ? 5 : 3);
+  if (root_field + offset_bytes > got) file.failAt(at, "truncated HDF5 superblock");
+  base_ = loadLe(sb + fields, offset_bytes);
+  if (base_ > static_cast<uint64_t>(file_size_)) file.failAt(at + static_cast<int64_t>(fields), "HDF5 base address past the end of the file");
+  offset_bytes_ = offset_bytes;
+  checkObjectHeader(loadLe(sb + root_field, offset_bytes), "the root group");
+}
+
+void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) const {
+  const auto fail = [&](int64_t at, const std::string& problem) {
+    throwAtByte(path_, at, "object header of " + what + ": " + problem);
+  };
+  // A chunk lies inside the file; its bytes are read (chunks are small in real files).
+  const auto inFile = [&](uint64_t relative, uint64_t length, int64_t cited) -> int64_t {
+    if (undefinedAddress(relative, offset_bytes_) || relative > static_cast<uint64_t>(file_size_) - base_ ||
+        length > static_cast<uint64_t>(file_size_) - base_ - relative) {
+      fail(cited, "a chunk of " + std::to_string(length) + " bytes at address " + std::to_string(relative) +
+                      " lies outside the file");
+    }
+    if (length > kMaxChunkBytes) fail(cited, "a chunk of " + std::to_string(length) + " bytes (implausible)");
+    return static_cast<int64_t>(base_ + relative);
+  };
+  BinaryFile file(path_);
+  const int64_t at = inFile(address, 16, static_cast<int64_t>(base_));
+  file.seek(at);
+  uint8_t h[48] = {};
+  const size_t got = file.read(h, sizeof(h));
+  int version = 0;
+  bool creation_order = false;  // v2: each message carries a 2-byte creation index
+  int64_t messages_at = 0;
+  uint64_t messages_bytes = 0;
+  if (got >= 6 && std::memcmp(h, "OHDR", 4) == 0 && h[4] == 2) {
+    // Version 2: signature, version, flags, [4 times], [2 attribute phase limits], chunk #0 size.
+    version = 2;
+    const uint8_t flags = h[5];
+    creation_order = (flags & 0x04) != 0;
+    int64_t prefix = 6 + ((flags & 0x20) ? 16 : 0) + ((flags & 0x10) ? 4 : 0);
+    const int width = 1 << (flags & 3);
+    if (got < static_cast<size_t>(prefix + width)) fail(at, "truncated");
+    messages_bytes = loadLe(h + prefix, width);
+    messages_at = at + prefix + width;
+    inFile(address + static_cast<uint64_t>(prefix + width), messages_bytes + 4, at);  // + checksum
+  } else if (got >= 16 && h[0] == 1) {
+    // Version 1: version, reserved, message count, reference count, header size, padding.
+    version = 1;
+    messages_bytes = loadLe(h + 8, 4);
+    messages_at = at + 16;
+    inFile(address + 16, messages_bytes, at);
+  } else {
+    fail(at, "neither version 1 nor version 2 (damaged?)");
+  }
+
+  // Every continuation chunk the messages point to must lie in the file too: the library loads
+  // each one at its stated length.
+  struct Chunk {
+    int64_t at;
+    uint64_t bytes;
+  };
+  std::vector<Chunk> pending = {{messages_at, messages_bytes}};
+  std::set<int64_t> seen = {messages_at};
+  const size_t header_bytes = version == 1 ? 8 : (creation_order ? 6 : 4);
+  std::vector<uint8_t> chunk;
+  while (!pending.empty()) {
+    const Chunk c = pending.back();
+    pending.pop_back();
+    chunk.resize(c.bytes);
+    file.seek(c.at);
+    file.readExact(chunk.data(), chunk.size(), "an object header chunk");
+    for (size_t pos = 0; pos + header_bytes <= chunk.size();) {
+      const int type = version == 1 ? loadLe(&chunk[pos], 2) : chunk[pos];
+      const uint64_t size = version == 1 ? loadLe(&chunk[pos + 2], 2) : loadLe(&chunk[pos + 1], 2);
+      const size_t data = pos + header_bytes;
+      if (size > chunk.size() - data) fail(c.at + static_cast<int64_t>(pos), "a message runs past its chunk");
+      if (type == kContinuation) {
+        if (size < static_cast<uint64_t>(offset_bytes_ + length_bytes_)) fail(c.at + static_cast<int64_t>(pos), "a short continuation message");
+        const uint64_t next = loadLe(&chunk[data], offset_bytes_);
+        const uint64_t length = loadLe(&chunk[data + offset_bytes_], length_bytes_);
+        int64_t next_at = inFile(next, length, c.at + static_cast<int64_t>(pos));
+        uint64_t next_bytes = length;
+        if (version == 2) {  // "OCHK", the messages, a checksum
+          if (length < 8) fail(next_at, "a continuation chunk of " + std::to_string(length) + " bytes");
+          next_at += 4;
+          next_bytes -= 8;
+        }
+        if (seen.size() > kMaxChunks) fail(at, "more than " + std::to_string(kMaxChunks) + " chunks");
+        if (seen.insert(next_at).second) pending.push_back({next_at, next_bytes});
+      } else if (type == kSymbolTable) {
+        // An old-style group: a B-tree of symbol nodes and the local heap of their names; the
+        // library loads the heap's data segment at its stated size.
+        if (size < static_cast<uint64_t>(2 * offset_bytes_)) fail(c.at + static_cast<int64_t>(pos), "a short symbol table message");
+        checkLocalHeap(loadLe(&chunk[data + offset_bytes_], offset_bytes_), what);
+      }
+      pos = data + size;
+    }
+  }
+}
+
+void Hdf5Precheck::checkLocalHeap(uint64_t address, const std::string& what) const {
+  // "HEAP", version 0, 3 reserved bytes, data segment size (L), free list offset (L), data segment
+  // address (O): section III.D of the specification.
+  const auto fail = [&](int64_t at, const std::string& problem) {
+    throwAtByte(path_, at, "local heap of " + what + ": " + problem);
+  };
+  const size_t prefix = 8 + 2 * static_cast<size_t>(length_bytes_) + static_cast<size_t>(offset_bytes_);
+  if (undefinedAddress(address, offset_bytes_) || address > static_cast<uint64_t>(file_size_) - base_ ||
+      prefix > static_cast<uint64_t>(file_size_) - base_ - address) {
+    fail(static_cast<int64_t>(base_), "address " + std::to_string(address) + " lies outside the file");
+  }
+  const int64_t at = static_cast<int64_t>(base_ + address);
+  BinaryFile file(path_);
+  file.seek(at);
+  uint8_t h[40] = {};
+  file.readExact(h, prefix, "a local heap prefix");
+  if (std::memcmp(h, "HEAP", 4) != 0) fail(at, "no HEAP signature");
+  const uint64_t bytes = loadLe(h + 8, length_bytes_);
+  const uint64_t segment = loadLe(h + 8 + 2 * length_bytes_, offset_bytes_);
+  if (undefinedAddress(segment, offset_bytes_) || segment > static_cast<uint64_t>(file_size_) - base_ ||
+      bytes > static_cast<uint64_t>(file_size_) - base_ - segment || bytes > kMaxChunkBytes) {
+    fail(at, "a data segment of " + std::to_string(bytes) + " bytes at address " + std::to_string(segment) +
+                 " lies outside the file");
+  }
+}
+
+}  // namespace evkit::detail

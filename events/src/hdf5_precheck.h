@@ -1,0 +1,36 @@
+// Checks, from the file's own bytes, the sizes that libhdf5 trusts before it allocates.
+//
+// Debian 12's libhdf5 1.10.8 allocates an object header's first chunk at the size the header
+// states, before it checks it against the file: a damaged size field asks for hundreds of
+// gigabytes inside H5Fopen or H5Dopen2. evkit reads the superblock and each object header it is
+// about to open (HDF5 File Format Specification 3.0, sections II.A and IV.A.1) and refuses one that
+// claims more bytes than the file holds, so the library is only asked for what the file can back.
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+namespace evkit::detail {
+
+class Hdf5Precheck {
+ public:
+  // Reads the superblock (at byte 0 or after a user block of 512, 1024, 2048, ... bytes); throws
+  // evkit::Error "FILE: byte N: ..." when it is missing, of an unknown version or inconsistent,
+  // and when the root group's object header does not fit in the file.
+  explicit Hdf5Precheck(std::string path);
+
+  // Checks the object header at `address` (relative to the base address, as HDF5 links store
+  // addresses); `what` names the object in the error message.
+  void checkObjectHeader(uint64_t address, const std::string& what) const;
+
+ private:
+  void checkLocalHeap(uint64_t address, const std::string& what) const;
+
+  std::string path_;
+  int64_t file_size_ = 0;
+  uint64_t base_ = 0;
+  int offset_bytes_ = 0;  // 2, 4 or 8: the width of an address
+  int length_bytes_ = 0;  // 2, 4 or 8: the width of a length
+};
+
+}  // namespace evkit::detail
