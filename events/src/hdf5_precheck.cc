@@ -12,7 +12,9 @@ namespace {
 
 constexpr uint8_t kSignature[8] = {0x89, 'H', 'D', 'F', '\r', '\n', 0x1a, '\n'};
 constexpr int kContinuation = 0x10;  // object header message types
+constexpr int kLayout = 0x08;
 constexpr int kSymbolTable = 0x11;
+constexpr int kChunkedLayout = 2;
 constexpr uint64_t kMaxChunkBytes = uint64_t{1} << 26;  // 64 MB: real header chunks hold a few kB
 constexpr size_t kMaxChunks = 4096;
 
@@ -154,6 +156,8 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
         }
         if (seen.size() > kMaxChunks) fail(at, "more than " + std::to_string(kMaxChunks) + " chunks");
         if (seen.insert(next_at).second) pending.push_back({next_at, next_bytes});
+      } else if (type == kLayout) {
+        checkLayout(&chunk[data], size, c.at + static_cast<int64_t>(data), what);
       } else if (type == kSymbolTable) {
         // An old-style group: a B-tree of symbol nodes and the local heap of their names; the
         // library loads the heap's data segment at its stated size.
@@ -188,6 +192,46 @@ void Hdf5Precheck::checkLocalHeap(uint64_t address, const std::string& what) con
       bytes > static_cast<uint64_t>(file_size_) - base_ - segment || bytes > kMaxChunkBytes) {
     fail(at, "a data segment of " + std::to_string(bytes) + " bytes at address " + std::to_string(segment) +
                  " lies outside the file");
+  }
+}
+
+void Hdf5Precheck::checkLayout(const uint8_t* m, uint64_t size, int64_t at, const std::string& what) const {
+  // A chunked dataset's chunk dimensions divide in the library: a zero one is a SIGFPE there.
+  // Data layout message, section IV.A.2.i: versions 1-2 (dimensionality, class, 5 reserved bytes,
+  // an address unless compact, 4-byte dimensions), 3 (class, dimensionality, address, 4-byte
+  // dimensions) and 4 (class, flags, dimensionality, the dimensions' byte width, dimensions).
+  const auto fail = [&](const std::string& problem) {
+    throwAtByte(path_, at, "data layout of " + what + ": " + problem);
+  };
+  if (size < 2) fail("truncated");
+  const int version = m[0];
+  size_t pos = 0;
+  int rank = 0;
+  int width = 4;
+  if (version == 1 || version == 2) {
+    if (size < 3 || m[2] != kChunkedLayout) return;
+    rank = m[1];
+    pos = 8 + static_cast<size_t>(offset_bytes_);
+  } else if (version == 3) {
+    if (m[1] != kChunkedLayout) return;
+    if (size < 3) fail("truncated");
+    rank = m[2];
+    pos = 3 + static_cast<size_t>(offset_bytes_);
+  } else if (version == 4) {
+    if (m[1] != kChunkedLayout) return;
+    if (size < 5) fail("truncated");
+    rank = m[3];
+    width = m[4];
+    pos = 5;
+    if (width < 1 || width > 8) fail("dimensions " + std::to_string(width) + " bytes wide");
+  } else {
+    fail("unknown version " + std::to_string(version));
+  }
+  // One more dimension than the dataspace has (the element size); a chunked dataspace has one.
+  if (rank < 2 || rank > 33) fail("dimensionality " + std::to_string(rank));
+  if (pos + static_cast<size_t>(rank) * static_cast<size_t>(width) > size) fail("truncated");
+  for (int d = 0; d < rank; ++d) {
+    if (loadLe(m + pos + static_cast<size_t>(d * width), width) == 0) fail("a chunk dimension of 0");
   }
 }
 
