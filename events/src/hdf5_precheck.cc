@@ -15,8 +15,11 @@ constexpr int kContinuation = 0x10;  // object header message types
 constexpr int kLayout = 0x08;
 constexpr int kSymbolTable = 0x11;
 constexpr int kChunkedLayout = 2;
-constexpr uint64_t kMaxChunkBytes = uint64_t{1} << 26;  // 64 MB: real header chunks hold a few kB
-constexpr size_t kMaxChunks = 4096;
+// 64 MB: real header chunks hold a few kB, real data chunks (h5py aims at 1 MB, evkit writes 1 MB) a
+// few MB at most.
+constexpr uint64_t kMaxChunkBytes = uint64_t{1} << 26;
+constexpr size_t kMaxChunks = 4096;        // object header chunks of one object
+constexpr size_t kMaxIndexNodes = 1 << 16;  // chunk B-tree nodes of one dataset
 
 uint64_t loadLe(const uint8_t* p, int bytes) {
   uint64_t v = 0;
@@ -230,8 +233,68 @@ void Hdf5Precheck::checkLayout(const uint8_t* m, uint64_t size, int64_t at, cons
   // One more dimension than the dataspace has (the element size); a chunked dataspace has one.
   if (rank < 2 || rank > 33) fail("dimensionality " + std::to_string(rank));
   if (pos + static_cast<size_t>(rank) * static_cast<size_t>(width) > size) fail("truncated");
+  // The last "dimension" is the element size: the product is a chunk's bytes, which the library
+  // allocates to read one.
+  uint64_t bytes = 1;
   for (int d = 0; d < rank; ++d) {
-    if (loadLe(m + pos + static_cast<size_t>(d * width), width) == 0) fail("a chunk dimension of 0");
+    const uint64_t n = loadLe(m + pos + static_cast<size_t>(d * width), width);
+    if (n == 0) fail("a chunk dimension of 0");
+    if (n > kMaxChunkBytes || bytes * n > kMaxChunkBytes) fail("chunks of more than " + std::to_string(kMaxChunkBytes) + " bytes");
+    bytes *= n;
+  }
+  if (version <= 3) {
+    const size_t address_at = version == 3 ? 3 : 8;
+    checkChunkIndex(loadLe(m + address_at, offset_bytes_), rank, what);
+  }
+}
+
+void Hdf5Precheck::checkChunkIndex(uint64_t address, int rank, const std::string& what) const {
+  // Version 1 B-tree of raw data chunks (section III.A.1): "TREE", type 1, level, entries, two
+  // sibling addresses, then key, child, key, child, ..., key. A key holds the chunk's stored size
+  // (4 bytes), its filter mask (4) and `rank` 8-byte offsets; a leaf's children are the chunks.
+  // The library reads each chunk at its stored size.
+  if (undefinedAddress(address, offset_bytes_)) return;  // no chunk written yet
+  const auto fail = [&](int64_t at, const std::string& problem) {
+    throwAtByte(path_, at, "chunk index of " + what + ": " + problem);
+  };
+  const uint64_t limit = static_cast<uint64_t>(file_size_) - base_;  // addresses are below it
+  const size_t header = 8 + 2 * static_cast<size_t>(offset_bytes_);
+  const size_t key = 8 + 8 * static_cast<size_t>(rank);
+  const size_t entry = key + static_cast<size_t>(offset_bytes_);
+  BinaryFile file(path_);
+  std::vector<uint64_t> pending = {address};
+  std::set<uint64_t> seen = {address};
+  std::vector<uint8_t> node;
+  while (!pending.empty()) {
+    const uint64_t node_address = pending.back();
+    pending.pop_back();
+    const int64_t at = static_cast<int64_t>(base_ + node_address);
+    if (node_address >= limit || header > limit - node_address) fail(static_cast<int64_t>(base_), "a node outside the file");
+    node.resize(header);
+    file.seek(at);
+    file.readExact(node.data(), header, "a B-tree node");
+    if (std::memcmp(node.data(), "TREE", 4) != 0 || node[4] != 1) fail(at, "not a chunk B-tree node");
+    const int level = node[5];
+    const uint64_t entries = loadLe(&node[6], 2);
+    const uint64_t bytes = header + entries * entry + key;
+    if (bytes > limit - node_address) fail(at, std::to_string(entries) + " entries run past the end of the file");
+    node.resize(bytes);
+    file.readExact(node.data() + header, bytes - header, "B-tree node entries");
+    for (uint64_t i = 0; i < entries; ++i) {
+      const uint8_t* k = &node[header + i * entry];
+      const uint64_t child = loadLe(k + key, offset_bytes_);
+      if (child >= limit) fail(at, "a child address outside the file");
+      if (level == 0) {
+        const uint64_t stored = loadLe(k, 4);
+        if (stored > limit - child || stored > kMaxChunkBytes) {
+          fail(at, "a chunk of " + std::to_string(stored) + " bytes at address " + std::to_string(child) +
+                       " runs past the end of the file");
+        }
+      } else {
+        if (seen.size() > kMaxIndexNodes) fail(at, "more than " + std::to_string(kMaxIndexNodes) + " nodes");
+        if (seen.insert(child).second) pending.push_back(child);
+      }
+    }
   }
 }
 
