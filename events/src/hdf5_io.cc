@@ -27,6 +27,7 @@
 #include "evkit/events/error.h"
 #include "evkit/events/image_io.h"
 #include "formats.h"
+#include "hdf5_filters.h"
 #include "hdf5_precheck.h"
 #include "hdf5_util.h"
 
@@ -58,6 +59,7 @@ class Hdf5Reader final : public EventReader {
  public:
   explicit Hdf5Reader(std::string path) : path_(std::move(path)), precheck_(path_) {
     silenceHdf5Errors();
+    useCheckedFilters();
     file_ = H5Handle(H5Fopen(path_.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT));
     if (!file_) throwAtByte(path_, 0, "not a readable HDF5 file (corrupt or truncated?)");
     info_.format = Format::kHdf5;
@@ -168,6 +170,7 @@ class Hdf5Reader final : public EventReader {
     }
     if (layout_ == Layout::kDsec) {
       H5Handle off = open("t_offset");
+      const ChunkSizeScope chunk_size(off.get());
       if (H5Dread(off.get(), H5T_NATIVE_INT64, H5S_ALL, H5S_ALL, H5P_DEFAULT, &t_offset_dsec_) < 0) {
         throwInFile(path_, "cannot read t_offset");
       }
@@ -321,6 +324,7 @@ class Hdf5Reader final : public EventReader {
       count[0] = 1;
       H5Handle mem_space(H5Screate_simple(static_cast<int>(count.size()), count.data(), nullptr));
       H5Sselect_hyperslab(file_space.get(), H5S_SELECT_SET, start.data(), nullptr, count.data(), nullptr);
+      const ChunkSizeScope chunk_size(images_.get());
       if (H5Dread(images_.get(), frame_bits_ == 16 ? H5T_NATIVE_UINT16 : H5T_NATIVE_UINT8, mem_space.get(),
                   file_space.get(), H5P_DEFAULT, raw.data) < 0) {
         throwInFile(path_, "cannot read frames/images[" + std::to_string(i) + "] (truncated or corrupt?)");
@@ -337,6 +341,7 @@ class Hdf5Reader final : public EventReader {
       const bool wide = H5Tget_size(type.get()) >= 2;
       raw.create(static_cast<int>(shape[0]), static_cast<int>(shape[1]),
                  CV_MAKETYPE(wide ? CV_16U : CV_8U, shape.size() == 3 ? 3 : 1));
+      const ChunkSizeScope chunk_size(ds.get());
       if (H5Dread(ds.get(), wide ? H5T_NATIVE_UINT16 : H5T_NATIVE_UINT8, H5S_ALL, H5S_ALL, H5P_DEFAULT,
                   raw.data) < 0) {
         throwInFile(path_, "cannot read " + name);
@@ -409,6 +414,7 @@ class Hdf5Writer final : public EventWriter {
   Hdf5Writer(const std::string& path, SensorSize sensor, const WriterOptions& options)
       : out_(path), sensor_(sensor), options_(options), buffer_(sensor) {
     silenceHdf5Errors();
+    useCheckedFilters();  // the same streams as the built-in filters: round trips test them
     file_ = H5Handle(H5Fcreate(out_.temporaryPath().c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT));
     if (!file_) throwInFile(path, "cannot create HDF5 file");
     H5Handle group(H5Gcreate2(file_.get(), "events", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT));

@@ -1,5 +1,7 @@
 #include "hdf5_util.h"
 
+#include "hdf5_filters.h"
+
 namespace evkit::detail {
 
 void H5Handle::reset() {
@@ -102,6 +104,7 @@ std::vector<hsize_t> datasetShape(hid_t dataset) {
 void readRange(hid_t dataset, hid_t mem_type, hsize_t begin, hsize_t count, void* out,
                const std::string& file, const std::string& name) {
   if (count == 0) return;
+  const ChunkSizeScope chunk_size(dataset);
   H5Handle file_space(H5Dget_space(dataset));
   H5Handle mem_space(H5Screate_simple(1, &count, nullptr));
   if (H5Sselect_hyperslab(file_space.get(), H5S_SELECT_SET, &begin, nullptr, &count, nullptr) < 0 ||
