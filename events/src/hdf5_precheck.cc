@@ -13,6 +13,8 @@ namespace {
 constexpr uint8_t kSignature[8] = {0x89, 'H', 'D', 'F', '\r', '\n', 0x1a, '\n'};
 constexpr int kContinuation = 0x10;  // object header message types
 constexpr int kLayout = 0x08;
+constexpr int kAttribute = 0x0c;
+constexpr int kVariableLength = 9;  // datatype class
 constexpr int kSymbolTable = 0x11;
 constexpr int kChunkedLayout = 2;
 // 64 MB: real header chunks hold a few kB, real data chunks (h5py aims at 1 MB, evkit writes 1 MB) a
@@ -159,6 +161,8 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
         }
         if (seen.size() > kMaxChunks) fail(at, "more than " + std::to_string(kMaxChunks) + " chunks");
         if (seen.insert(next_at).second) pending.push_back({next_at, next_bytes});
+      } else if (type == kAttribute) {
+        checkAttribute(&chunk[data], size, c.at + static_cast<int64_t>(data), what);
       } else if (type == kLayout) {
         checkLayout(&chunk[data], size, c.at + static_cast<int64_t>(data), what);
       } else if (type == kSymbolTable) {
@@ -296,6 +300,39 @@ void Hdf5Precheck::checkChunkIndex(uint64_t address, int rank, const std::string
       }
     }
   }
+}
+
+void Hdf5Precheck::checkAttribute(const uint8_t* m, uint64_t size, int64_t at, const std::string& what) const {
+  // Attribute message, section IV.A.2.m: version, flags, name, datatype and dataspace sizes
+  // (2 bytes each), [v3: name encoding], then the three, each padded to 8 bytes in version 1, then
+  // the value. libhdf5 1.10.8 copies the value at the size the datatype and dataspace give, past
+  // the message when they claim more (a heap overflow inside H5Aexists, found by fuzzing).
+  const auto fail = [&](const std::string& problem) {
+    throwAtByte(path_, at, "an attribute of " + what + ": " + problem);
+  };
+  if (size < 8) fail("truncated");
+  const int version = m[0];
+  if (version < 1 || version > 3) fail("unknown version " + std::to_string(version));
+  const auto padded = [&](uint64_t n) { return version == 1 ? (n + 7) / 8 * 8 : n; };
+  const uint64_t name = loadLe(m + 2, 2), type = loadLe(m + 4, 2), space = loadLe(m + 6, 2);
+  const uint64_t type_at = (version == 3 ? 9 : 8) + padded(name);
+  const uint64_t space_at = type_at + padded(type);
+  const uint64_t value_at = space_at + padded(space);
+  if (value_at > size || type < 8 || space < 4) fail("its parts run past the message");
+  if ((m[type_at] & 0x0f) == kVariableLength) return;  // the value holds heap references
+  // Dataspace: version, rank, flags, [v1: 5 reserved bytes; v2: type], then the dimensions. A
+  // null dataspace (v2 type 2) holds no value; a scalar one (rank 0) one element.
+  if (m[space_at] >= 2 && m[space_at + 3] == 2) return;
+  const int rank = m[space_at + 1];
+  const uint64_t dims_at = space_at + (m[space_at] == 1 ? 8 : 4);
+  if (rank > 32 || dims_at + static_cast<uint64_t>(rank) * length_bytes_ > space_at + space) fail("a damaged dataspace");
+  uint64_t bytes = loadLe(m + type_at + 4, 4);  // the element size
+  for (int d = 0; d < rank; ++d) {
+    const uint64_t n = loadLe(m + dims_at + static_cast<uint64_t>(d) * length_bytes_, length_bytes_);
+    if (n != 0 && bytes > (size - value_at) / n) fail("a value larger than its message");
+    bytes *= n;
+  }
+  if (bytes > size - value_at) fail("a value larger than its message");
 }
 
 }  // namespace evkit::detail
