@@ -6,6 +6,7 @@
 #include <cstring>
 #include <mutex>
 
+#include "hdf5_precheck.h"
 #include "hdf5_util.h"
 
 namespace evkit::detail {
@@ -22,6 +23,7 @@ size_t replaceBuffer(void** buf, size_t* buf_size, void* out, size_t size, size_
 }
 
 size_t inflateChunk(size_t nbytes, size_t* buf_size, void** buf) {
+  if (t_chunk_bytes > kMaxHdf5ChunkBytes) return 0;
   z_stream z{};
   if (inflateInit(&z) != Z_OK) return 0;
   // Known size: exactly that, and the stream must end there. Unknown: grow as the library does.

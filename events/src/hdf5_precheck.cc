@@ -12,14 +12,12 @@ namespace {
 
 constexpr uint8_t kSignature[8] = {0x89, 'H', 'D', 'F', '\r', '\n', 0x1a, '\n'};
 constexpr int kContinuation = 0x10;  // object header message types
+constexpr int kDatatype = 0x03;
 constexpr int kLayout = 0x08;
 constexpr int kAttribute = 0x0c;
 constexpr int kVariableLength = 9;  // datatype class
 constexpr int kSymbolTable = 0x11;
 constexpr int kChunkedLayout = 2;
-// 64 MB: real header chunks hold a few kB, real data chunks (h5py aims at 1 MB, evkit writes 1 MB) a
-// few MB at most.
-constexpr uint64_t kMaxChunkBytes = uint64_t{1} << 26;
 constexpr size_t kMaxChunks = 4096;        // object header chunks of one object
 constexpr size_t kMaxIndexNodes = 1 << 16;  // chunk B-tree nodes of one dataset
 
@@ -94,7 +92,7 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
       fail(cited, "a chunk of " + std::to_string(length) + " bytes at address " + std::to_string(relative) +
                       " lies outside the file");
     }
-    if (length > kMaxChunkBytes) fail(cited, "a chunk of " + std::to_string(length) + " bytes (implausible)");
+    if (length > kMaxHdf5ChunkBytes) fail(cited, "a chunk of " + std::to_string(length) + " bytes (implausible)");
     return static_cast<int64_t>(base_ + relative);
   };
   BinaryFile file(path_);
@@ -161,6 +159,8 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
         }
         if (seen.size() > kMaxChunks) fail(at, "more than " + std::to_string(kMaxChunks) + " chunks");
         if (seen.insert(next_at).second) pending.push_back({next_at, next_bytes});
+      } else if (type == kDatatype) {
+        checkDatatype(&chunk[data], size, c.at + static_cast<int64_t>(data), what);
       } else if (type == kAttribute) {
         checkAttribute(&chunk[data], size, c.at + static_cast<int64_t>(data), what);
       } else if (type == kLayout) {
@@ -196,7 +196,7 @@ void Hdf5Precheck::checkLocalHeap(uint64_t address, const std::string& what) con
   const uint64_t bytes = loadLe(h + 8, length_bytes_);
   const uint64_t segment = loadLe(h + 8 + 2 * length_bytes_, offset_bytes_);
   if (undefinedAddress(segment, offset_bytes_) || segment > static_cast<uint64_t>(file_size_) - base_ ||
-      bytes > static_cast<uint64_t>(file_size_) - base_ - segment || bytes > kMaxChunkBytes) {
+      bytes > static_cast<uint64_t>(file_size_) - base_ - segment || bytes > kMaxHdf5ChunkBytes) {
     fail(at, "a data segment of " + std::to_string(bytes) + " bytes at address " + std::to_string(segment) +
                  " lies outside the file");
   }
@@ -243,7 +243,7 @@ void Hdf5Precheck::checkLayout(const uint8_t* m, uint64_t size, int64_t at, cons
   for (int d = 0; d < rank; ++d) {
     const uint64_t n = loadLe(m + pos + static_cast<size_t>(d * width), width);
     if (n == 0) fail("a chunk dimension of 0");
-    if (n > kMaxChunkBytes || bytes * n > kMaxChunkBytes) fail("chunks of more than " + std::to_string(kMaxChunkBytes) + " bytes");
+    if (n > kMaxHdf5ChunkBytes || bytes * n > kMaxHdf5ChunkBytes) fail("chunks of more than " + std::to_string(kMaxHdf5ChunkBytes) + " bytes");
     bytes *= n;
   }
   if (version <= 3) {
@@ -290,7 +290,7 @@ void Hdf5Precheck::checkChunkIndex(uint64_t address, int rank, const std::string
       if (child >= limit) fail(at, "a child address outside the file");
       if (level == 0) {
         const uint64_t stored = loadLe(k, 4);
-        if (stored > limit - child || stored > kMaxChunkBytes) {
+        if (stored > limit - child || stored > kMaxHdf5ChunkBytes) {
           fail(at, "a chunk of " + std::to_string(stored) + " bytes at address " + std::to_string(child) +
                        " runs past the end of the file");
         }
@@ -333,6 +333,19 @@ void Hdf5Precheck::checkAttribute(const uint8_t* m, uint64_t size, int64_t at, c
     bytes *= n;
   }
   if (bytes > size - value_at) fail("a value larger than its message");
+}
+
+void Hdf5Precheck::checkDatatype(const uint8_t* m, uint64_t size, int64_t at, const std::string& what) const {
+  // Datatype message, section IV.A.2.d: class and version, 3 bytes of class bits, the element size
+  // (4 bytes). libhdf5 converts integers and floats of any stated size, reading past its buffers
+  // for sizes no machine has (an integer of 12,802 bytes, found by fuzzing).
+  if (size < 8) throwAtByte(path_, at, "datatype of " + what + ": truncated");
+  const int type_class = m[0] & 0x0f;
+  const uint64_t bytes = loadLe(m + 4, 4);
+  const bool numeric = type_class == 0 || type_class == 1;  // fixed-point, floating-point
+  if (numeric && bytes != 1 && bytes != 2 && bytes != 4 && bytes != 8 && bytes != 16) {
+    throwAtByte(path_, at, "datatype of " + what + ": a number of " + std::to_string(bytes) + " bytes");
+  }
 }
 
 }  // namespace evkit::detail

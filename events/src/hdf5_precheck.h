@@ -12,6 +12,10 @@
 
 namespace evkit::detail {
 
+// The largest object header chunk, local heap or data chunk evkit lets libhdf5 allocate: real
+// header chunks hold a few kB and real data chunks a few MB (h5py aims at 1 MB, evkit writes 1 MB).
+constexpr uint64_t kMaxHdf5ChunkBytes = uint64_t{1} << 26;
+
 class Hdf5Precheck {
  public:
   // Reads the superblock (at byte 0 or after a user block of 512, 1024, 2048, ... bytes); throws
@@ -26,6 +30,7 @@ class Hdf5Precheck {
  private:
   void checkLocalHeap(uint64_t address, const std::string& what) const;
   void checkLayout(const uint8_t* message, uint64_t size, int64_t at, const std::string& what) const;
+  void checkDatatype(const uint8_t* message, uint64_t size, int64_t at, const std::string& what) const;
   void checkAttribute(const uint8_t* message, uint64_t size, int64_t at, const std::string& what) const;
   void checkChunkIndex(uint64_t address, int rank, const std::string& what) const;
 
