@@ -13,7 +13,7 @@
 
 #include "common.h"
 #include "evkit/events/atomic_file.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/spline/lie.h"
 
 namespace evkit::cli {

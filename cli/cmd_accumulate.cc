@@ -12,7 +12,7 @@
 #include "common.h"
 #include "evkit/events/accumulate.h"
 #include "evkit/events/atomic_file.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/npy.h"
 
 namespace evkit::cli {

@@ -10,7 +10,7 @@
 #include "bench.h"
 #include "common.h"
 #include "evkit/deblur/observation.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/synth/generator.h"
 
 namespace evkit::cli {

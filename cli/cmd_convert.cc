@@ -3,7 +3,7 @@
 #include <iostream>
 
 #include "common.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 
 namespace evkit::cli {
 

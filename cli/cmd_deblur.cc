@@ -11,7 +11,7 @@
 #include "deblur_runner.h"
 #include "evkit/deblur/metrics.h"
 #include "evkit/deblur/observation.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/image_io.h"
 
 namespace evkit::cli {

@@ -14,7 +14,7 @@
 #include "common.h"
 #include "evkit/deblur/observation.h"
 #include "evkit/events/accumulate.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/random_events.h"
 #include "evkit/synth/generator.h"
 

@@ -4,7 +4,7 @@
 #include <iostream>
 
 #include "common.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/image_io.h"
 
 namespace evkit::cli {

@@ -6,7 +6,7 @@
 #include <iostream>
 
 #include "common.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/frame_source.h"
 
 namespace evkit::cli {

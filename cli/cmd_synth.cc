@@ -6,7 +6,7 @@
 #include <tuple>
 
 #include "common.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/synth/generator.h"
 
 namespace evkit::cli {

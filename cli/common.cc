@@ -7,7 +7,7 @@
 #include <cstdio>
 #include <iostream>
 
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 
 #include "evkit/events/decimal.h"
 

@@ -16,7 +16,7 @@
 #include "common.h"
 #include "evkit/deblur/metrics.h"
 #include "evkit/events/atomic_file.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/image_io.h"
 #include "evkit/events/npy.h"
 #include "evkit/spline/tum.h"

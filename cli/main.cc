@@ -9,7 +9,7 @@
 #include <opencv2/core/utils/logger.hpp>
 
 #include "common.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 
 namespace {
 

@@ -14,7 +14,7 @@
 
 #include "evkit/deblur/edi.h"
 #include "evkit/deblur/metrics.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/nerf/adam.h"
 #include "evkit/nerf/train.h"
 

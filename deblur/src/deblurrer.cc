@@ -7,7 +7,7 @@
 
 #include "evkit/deblur/benerf.h"
 #include "evkit/deblur/edi.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 
 namespace evkit {
 

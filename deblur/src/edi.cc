@@ -7,7 +7,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "evkit/deblur/metrics.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 
 namespace evkit {
 

@@ -8,7 +8,7 @@
 
 #include <opencv2/quality.hpp>
 
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/image_io.h"
 
 namespace evkit {

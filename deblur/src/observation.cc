@@ -7,7 +7,7 @@
 
 #include "evkit/events/atomic_file.h"
 #include "evkit/events/decimal.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/image_io.h"
 #include "evkit/events/io.h"
 #include "evkit/spline/tum.h"

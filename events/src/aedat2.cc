@@ -18,7 +18,7 @@
 #include <cstring>
 
 #include "binary_file.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "formats.h"
 
 namespace evkit::detail {

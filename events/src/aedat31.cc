@@ -17,7 +17,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "binary_file.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "formats.h"
 
 namespace evkit::detail {

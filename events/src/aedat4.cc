@@ -20,7 +20,7 @@
 #include "binary_file.h"
 #include "codec.h"
 #include "evkit/events/atomic_file.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/image_io.h"
 #include "formats.h"
 #include "aedat4/events_generated.h"

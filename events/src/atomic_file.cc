@@ -7,7 +7,7 @@
 #include <fstream>
 #include <system_error>
 
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 
 namespace evkit {
 namespace fs = std::filesystem;

@@ -4,7 +4,7 @@
 #include <cctype>
 #include <filesystem>
 
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 
 namespace evkit::detail {
 

@@ -5,7 +5,7 @@
 #include <sstream>
 
 #include "evkit/events/atomic_file.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 
 namespace evkit {
 

@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cassert>
 
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 
 namespace evkit {
 

@@ -7,7 +7,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
 
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/image_io.h"
 #include "timed_list.h"
 

@@ -24,7 +24,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "evkit/events/atomic_file.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/image_io.h"
 #include "formats.h"
 #include "hdf5_filters.h"

@@ -5,7 +5,7 @@
 #include <vector>
 
 #include "binary_file.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 
 namespace evkit::detail {
 namespace {

@@ -8,7 +8,7 @@
 #include <utility>
 #include <vector>
 
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 
 namespace evkit::detail {
 

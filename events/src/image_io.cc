@@ -9,7 +9,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "evkit/events/atomic_file.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/decimal.h"
 
 namespace evkit {

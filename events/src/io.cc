@@ -6,7 +6,7 @@
 #include <filesystem>
 #include <fstream>
 
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "formats.h"
 
 namespace evkit {

@@ -19,7 +19,7 @@
 #include <cctype>
 
 #include "binary_file.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "formats.h"
 
 namespace evkit::detail {

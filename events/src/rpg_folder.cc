@@ -7,7 +7,7 @@
 
 #include <filesystem>
 
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/image_io.h"
 #include "formats.h"
 #include "timed_list.h"

@@ -9,7 +9,7 @@
 #include <filesystem>
 
 #include "evkit/events/atomic_file.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/image_io.h"
 #include "formats.h"
 #include "evkit/events/decimal.h"

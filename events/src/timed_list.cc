@@ -4,7 +4,7 @@
 #include <fstream>
 
 #include "evkit/events/decimal.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 
 namespace evkit::detail {
 

@@ -4,7 +4,7 @@
 #include <exception>
 
 #include "evkit/deblur/deblurrer.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/io.h"
 #include "evkit/events/random_events.h"
 

@@ -9,7 +9,7 @@
 #include <fstream>
 #include <sstream>
 
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 
 namespace evkit {
 

@@ -10,7 +10,7 @@
 #include "evkit/deblur/edi.h"
 #include "evkit/deblur/metrics.h"
 #include "evkit/deblur/observation.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/synth/generator.h"
 #include "test_util.h"
 

@@ -6,7 +6,7 @@
 
 #include "evkit/deblur/metrics.h"
 #include "evkit/deblur/observation.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/io.h"
 #include "evkit/synth/generator.h"
 #include "test_util.h"

@@ -2,7 +2,7 @@
 
 #include <gtest/gtest.h>
 
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/io.h"
 #include "evkit/events/random_events.h"
 #include "test_util.h"

@@ -6,7 +6,7 @@
 
 #include <random>
 
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/io.h"
 #include "evkit/events/random_events.h"
 #include "test_util.h"

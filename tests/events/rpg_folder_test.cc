@@ -1,6 +1,6 @@
 #include <gtest/gtest.h>
 
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/image_io.h"
 #include "evkit/events/io.h"
 #include "test_util.h"

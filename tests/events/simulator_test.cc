@@ -7,7 +7,7 @@
 #include <map>
 #include <random>
 
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/frame_source.h"
 #include "evkit/events/image_io.h"
 #include "test_util.h"

@@ -7,7 +7,7 @@
 #include "aedat4/events_generated.h"
 #include "aedat4/frame_generated.h"
 #include "aedat4/ioheader_generated.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/io.h"
 #include "evkit/events/random_events.h"
 #include "test_util.h"

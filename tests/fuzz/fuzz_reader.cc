@@ -16,7 +16,7 @@
 #include <filesystem>
 #include <string>
 
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/io.h"
 
 namespace {

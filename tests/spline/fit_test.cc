@@ -5,7 +5,7 @@
 #include <cmath>
 #include <random>
 
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/spline/tum.h"
 #include "test_util.h"
 

@@ -3,7 +3,7 @@
 #include <cmath>
 
 #include "evkit/deblur/observation.h"
-#include "evkit/events/error.h"
+#include "evkit/base/error.h"
 #include "evkit/events/image_io.h"
 #include "evkit/events/io.h"
 #include "evkit/spline/tum.h"
