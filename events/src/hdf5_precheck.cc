@@ -338,12 +338,13 @@ void Hdf5Precheck::checkAttribute(const uint8_t* m, uint64_t size, int64_t at, c
 void Hdf5Precheck::checkDatatype(const uint8_t* m, uint64_t size, int64_t at, const std::string& what) const {
   // Datatype message, section IV.A.2.d: class and version, 3 bytes of class bits, the element size
   // (4 bytes). libhdf5 converts integers and floats of any stated size, reading past its buffers
-  // for sizes no machine has (an integer of 12,802 bytes, found by fuzzing).
+  // for sizes no machine has (integers of 12,802 and of 16 bytes, found by fuzzing). Event files
+  // hold numbers of 1 to 8 bytes.
   if (size < 8) throwAtByte(path_, at, "datatype of " + what + ": truncated");
   const int type_class = m[0] & 0x0f;
   const uint64_t bytes = loadLe(m + 4, 4);
   const bool numeric = type_class == 0 || type_class == 1;  // fixed-point, floating-point
-  if (numeric && bytes != 1 && bytes != 2 && bytes != 4 && bytes != 8 && bytes != 16) {
+  if (numeric && bytes != 1 && bytes != 2 && bytes != 4 && bytes != 8) {
     throwAtByte(path_, at, "datatype of " + what + ": a number of " + std::to_string(bytes) + " bytes");
   }
 }
