@@ -9,7 +9,7 @@
 #include "benerf_common.h"
 #include "evkit/base/error.h"
 #include "evkit/deblur/benerf.h"
-#include "evkit/nerf/train.h"
+#include "evkit/nerf/ray_batch.h"
 
 namespace evkit {
 
@@ -39,23 +39,6 @@ nerf::HashFieldConfig adaptedHash(nerf::HashFieldConfig c, int finest) {
   return c;
 }
 
-// The samples of one ray in the field's precision: NDC positions into columns [col, col + S) of
-// `positions`, interval lengths (t_{j+1} - t_j) |d| (t_S = 1), stratified t from the jitter.
-template <typename T>
-void sampleRayInto(const nerf::NdcRay& ray, int S, const float* jitter, double depth_scale,
-                   Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>& positions, Eigen::Index col, T* t, T* delta) {
-  const double length = ray.direction.norm();
-  for (int j = 0; j < S; ++j) t[j] = (static_cast<T>(j) + static_cast<T>(jitter[j])) / static_cast<T>(S);
-  for (int j = 0; j < S; ++j) {
-    delta[j] = ((j + 1 < S ? t[j + 1] : T(1)) - t[j]) * static_cast<T>(length);
-    const double tj = static_cast<double>(t[j]);
-    positions(0, col + j) = static_cast<T>(ray.origin.x() + tj * ray.direction.x());
-    positions(1, col + j) = static_cast<T>(ray.origin.y() + tj * ray.direction.y());
-    positions(2, col + j) = static_cast<T>(depth_scale * (ray.origin.z() + tj * ray.direction.z()));
-  }
-}
-
-
 }  // namespace
 
 template <typename T>
@@ -66,7 +49,9 @@ BenerfProblem<T>::BenerfProblem(const Observation& obs, const BenerfOptions& opt
       views_(virtual_views),
       blurry_(toFloat(obs.blurry.image)),
       trajectory_(options.trajectory, obs.blurry.exposure_start_us, obs.blurry.exposure_end_us,
-                  initialKnots(std::max(options.knots, Trajectory::minimumKnots(options.trajectory)), options.knot_init, options.seed)) {
+                  initialKnots(std::max(options.knots, Trajectory::minimumKnots(options.trajectory)), options.knot_init, options.seed)),
+      rays_options_{.samples = options.samples, .near = options.near, .depth_scale = options.depth_scale, .render = {}},
+      rays_(camera_, rays_options_) {
   if (channels_ != 1 && channels_ != 3) throw Error("benerf: the blurry frame must be grey or colour, not " + std::to_string(channels_) + " channels");
   if (views_ < 1) throw Error("benerf: need at least one virtual view");
   if (options.field == "hash") {
@@ -157,11 +142,8 @@ typename BenerfProblem<T>::Batch BenerfProblem<T>::sampleBatch(std::mt19937_64& 
 
 template <typename T>
 typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, Eigen::VectorXd* knot_gradient) {
-  using Matrix = typename nerf::RadianceField<T>::Matrix;
-  const int C = channels_, S = options_.samples, V = views_;
-  const int W = camera_.width;
+  const int V = views_, W = camera_.width;
   const int Pb = static_cast<int>(batch.blur_pixels.size()), Pe = static_cast<int>(batch.event_pixels.size());
-  const int R = Pb * V + 2 * Pe;
   // Poses: the V virtual views, then the ends of each event window; event pixel i has window
   // i mod windows.
   const int windows = static_cast<int>(batch.window_begin.size());
@@ -174,54 +156,54 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
   std::vector<SE3> poses(s.size());
   std::vector<KnotJacobians> jacobians(s.size());
   for (size_t k = 0; k < s.size(); ++k) poses[k] = trajectory_.evaluate(s[k], knot_gradient ? &jacobians[k] : nullptr);
-  // Ray r: pixel and pose index.
-  const auto rayPixel = [&](int r) {
-    if (r < Pb * V) return batch.blur_pixels[static_cast<size_t>(r / V)];
-    return batch.event_pixels[static_cast<size_t>((r - Pb * V) / 2)];
-  };
-  const auto rayPose = [&](int r) { return r < Pb * V ? r % V : V + 2 * (((r - Pb * V) / 2) % windows) + (r - Pb * V) % 2; };
-
-  Matrix positions(3, static_cast<Eigen::Index>(R) * S);
-  std::vector<T> ts(static_cast<size_t>(R) * S), delta(static_cast<size_t>(R) * S);
-  std::vector<Eigen::Vector3d> directions(static_cast<size_t>(R));  // NDC d of each ray
-#pragma omp parallel for schedule(static)
-  for (int r = 0; r < R; ++r) {
-    const int p = rayPixel(r);
-    const nerf::NdcRay ray = nerf::toNdc(nerf::worldRay(camera_, poses[static_cast<size_t>(rayPose(r))], p % W, p / W), camera_, options_.near);
-    directions[static_cast<size_t>(r)] = ray.direction;
-    const size_t o = static_cast<size_t>(r) * S;
-    sampleRayInto<T>(ray, S, &batch.jitter[o], options_.depth_scale, positions, static_cast<Eigen::Index>(o), &ts[o], &delta[o]);
+  // The rays: each blur pixel from the V views, then each event pixel from its window's two ends.
+  std::vector<typename nerf::RayBatch<T>::PixelRay> rays;
+  rays.reserve(static_cast<size_t>(Pb * V + 2 * Pe));
+  for (int i = 0; i < Pb; ++i) {
+    const int p = batch.blur_pixels[static_cast<size_t>(i)];
+    for (int k = 0; k < V; ++k) rays.push_back({p % W, p / W, k});
   }
+  for (int i = 0; i < Pe; ++i) {
+    const int p = batch.event_pixels[static_cast<size_t>(i)];
+    for (int end = 0; end < 2; ++end) rays.push_back({p % W, p / W, V + 2 * (i % windows) + end});
+  }
+  rays_.setRays(poses, std::move(rays), batch.jitter.data());
   if (knot_gradient) field_->zeroGradients();
-  const Matrix out = field_->forward(positions);
-
-  // Render every ray.
-  const nerf::RenderSettings settings{};
-  std::vector<nerf::RayRender<T>> renders(static_cast<size_t>(R));
-  std::vector<T> sigma(static_cast<size_t>(R) * S), colours(static_cast<size_t>(R) * S * C);
-#pragma omp parallel for schedule(static)
-  for (int r = 0; r < R; ++r) {
-    for (int j = 0; j < S; ++j) {
-      const Eigen::Index col = static_cast<Eigen::Index>(r) * S + j;
-      sigma[static_cast<size_t>(col)] = out(0, col);
-      for (int c = 0; c < C; ++c) colours[static_cast<size_t>(col) * C + c] = out(1 + c, col);
-    }
-    const size_t o = static_cast<size_t>(r) * S;
-    renders[static_cast<size_t>(r)] = nerf::renderRay(&sigma[o], &colours[o * C], &delta[o], static_cast<const T*>(nullptr), static_cast<size_t>(S), C, settings);
-  }
+  rays_.forward(*field_, knot_gradient != nullptr);
 
   Loss loss;
-  std::vector<T> d_colour(static_cast<size_t>(R) * 3, T(0));  // dL/d(rendered colour) per ray
-  // Blur term: the mean of the V renders against the blurry pixel (or each render against its
-  // view's target).
+  std::vector<T> d_colour(static_cast<size_t>(rays_.size()) * 3, T(0));  // dL/d(rendered colour) per ray
+  loss.blur = blurTerm(batch, d_colour);
+  loss.event = eventTerm(batch, d_colour);
+  loss.total = blur_weight_ * loss.blur + beta_ * loss.event;
+  if (!knot_gradient) return loss;
+
+  const std::vector<Vector6> pose_gradient = rays_.backward(*field_, d_colour, true);
+  knot_gradient->setZero(6 * static_cast<Eigen::Index>(trajectory_.knots().size()));
+  for (size_t k = 0; k < poses.size(); ++k) {
+    const KnotJacobians& J = jacobians[k];
+    for (int i = 0; i < J.count; ++i) {
+      knot_gradient->segment<6>(6 * (J.first_knot + i)) += J.d_pose_d_knot[static_cast<size_t>(i)].transpose() * pose_gradient[k];
+    }
+  }
+  return loss;
+}
+
+template <typename T>
+double BenerfProblem<T>::blurTerm(const Batch& batch, std::vector<T>& d_colour) const {
+  // The mean of the V renders against the blurry pixel (or each render against its view's target).
+  const int C = channels_, V = views_, W = camera_.width;
+  const int Pb = static_cast<int>(batch.blur_pixels.size());
+  const auto colour = [&](int i, int k, int c) { return rays_.render(i * V + k).colour[c]; };
+  double term = 0;
   for (int i = 0; i < Pb; ++i) {
     const int p = batch.blur_pixels[static_cast<size_t>(i)];
     if (!view_targets_.empty()) {
       for (int k = 0; k < V; ++k) {
         const float* b = view_targets_[static_cast<size_t>(k)].ptr<float>(p / W) + (p % W) * C;
         for (int c = 0; c < C; ++c) {
-          const T e = renders[static_cast<size_t>(i * V + k)].colour[c] - static_cast<T>(b[c]);
-          loss.blur += static_cast<double>(e * e) / (Pb * C * V);
+          const T e = colour(i, k, c) - static_cast<T>(b[c]);
+          term += static_cast<double>(e * e) / (Pb * C * V);
           d_colour[static_cast<size_t>(i * V + k) * 3 + c] = static_cast<T>(2 * blur_weight_) * e / static_cast<T>(Pb * C * V);
         }
       }
@@ -230,122 +212,69 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
     const float* b = blurry_.ptr<float>(p / W) + (p % W) * C;
     for (int c = 0; c < C; ++c) {
       T mean = 0;
-      for (int k = 0; k < V; ++k) mean += renders[static_cast<size_t>(i * V + k)].colour[c];
+      for (int k = 0; k < V; ++k) mean += colour(i, k, c);
       mean /= T(V);
       const T e = mean - static_cast<T>(b[c]);
-      loss.blur += static_cast<double>(e * e) / (Pb * C);
+      term += static_cast<double>(e * e) / (Pb * C);
       const T g = static_cast<T>(2 * blur_weight_) * e / static_cast<T>(Pb * C * V);
       for (int k = 0; k < V; ++k) d_colour[static_cast<size_t>(i * V + k) * 3 + c] = g;
     }
   }
-  // Event term: accumulated events against the change of the log grey renders.
-  if (Pe > 0) {
-    std::vector<T> grey_a(static_cast<size_t>(Pe)), grey_b(static_cast<size_t>(Pe)), change(static_cast<size_t>(Pe));
-    std::vector<double> target(static_cast<size_t>(Pe));
-    double target_norm2 = 0;
-    T change_norm2 = 0;
-    for (int i = 0; i < Pe; ++i) {
-      const size_t ra = static_cast<size_t>(Pb * V + 2 * i);
-      grey_a[static_cast<size_t>(i)] = nerf::greyOf(renders[ra].colour, C);
-      grey_b[static_cast<size_t>(i)] = nerf::greyOf(renders[ra + 1].colour, C);
-      change[static_cast<size_t>(i)] = options_.log.logOf(grey_b[static_cast<size_t>(i)]) - options_.log.logOf(grey_a[static_cast<size_t>(i)]);
-      target[static_cast<size_t>(i)] = accumulatedEvents(batch.event_pixels[static_cast<size_t>(i)], batch.window_begin[static_cast<size_t>(i % windows)],
-                                                  batch.window_end[static_cast<size_t>(i % windows)]);
-      target_norm2 += target[static_cast<size_t>(i)] * target[static_cast<size_t>(i)];
-      change_norm2 += change[static_cast<size_t>(i)] * change[static_cast<size_t>(i)];
-    }
-    std::vector<T> d_change(static_cast<size_t>(Pe));
-    // Normalised comparison unless the thresholds are known and normalisation is off; a window
-    // without events compares directly with zero change.
-    const bool normalise = target_norm2 > 0 && normalised_;
-    if (normalise) {
-      const T tiny = T(1e-6);
-      const T norm = std::sqrt(change_norm2 + tiny * tiny);
-      const double target_norm = std::sqrt(target_norm2);
-      T dot = 0;
-      std::vector<T> g(static_cast<size_t>(Pe));
-      for (int i = 0; i < Pe; ++i) {
-        const T e = change[static_cast<size_t>(i)] / norm - static_cast<T>(target[static_cast<size_t>(i)] / target_norm);
-        loss.event += static_cast<double>(e * e) / Pe;
-        g[static_cast<size_t>(i)] = T(2) * e / static_cast<T>(Pe);
-        dot += change[static_cast<size_t>(i)] * g[static_cast<size_t>(i)];
-      }
-      for (int i = 0; i < Pe; ++i) {
-        d_change[static_cast<size_t>(i)] = g[static_cast<size_t>(i)] / norm - change[static_cast<size_t>(i)] * dot / (norm * norm * norm);
-      }
-    } else {
-      for (int i = 0; i < Pe; ++i) {
-        const T e = change[static_cast<size_t>(i)] - static_cast<T>(target[static_cast<size_t>(i)]);
-        loss.event += static_cast<double>(e * e) / Pe;
-        d_change[static_cast<size_t>(i)] = T(2) * e / static_cast<T>(Pe);
-      }
-    }
-    const T beta = static_cast<T>(beta_);
-    for (int i = 0; i < Pe; ++i) {
-      const size_t ra = static_cast<size_t>(Pb * V + 2 * i);
-      const T d = beta * d_change[static_cast<size_t>(i)];
-      nerf::greyBackward(-d * options_.log.logSlope(grey_a[static_cast<size_t>(i)]), C, &d_colour[ra * 3]);
-      nerf::greyBackward(d * options_.log.logSlope(grey_b[static_cast<size_t>(i)]), C, &d_colour[(ra + 1) * 3]);
-    }
-  }
-  loss.total = blur_weight_ * loss.blur + beta_ * loss.event;
-  if (!knot_gradient) return loss;
+  return term;
+}
 
-  // Back through the renderer and the field.
-  Matrix d_out(1 + C, static_cast<Eigen::Index>(R) * S);
-  // dL/d|d| per ray: the interval lengths scale with the NDC direction's length, tau_j = sigma_j
-  // (t_{j+1} - t_j) |d|, so dL/d|d| = sum_j dL/dsigma_j sigma_j / |d|.
-  std::vector<double> d_length(static_cast<size_t>(R), 0.0);
-#pragma omp parallel for schedule(static)
-  for (int r = 0; r < R; ++r) {
-    const size_t o = static_cast<size_t>(r) * S;
-    std::vector<T> d_sigma(static_cast<size_t>(S)), d_colours(static_cast<size_t>(S) * C);
-    nerf::renderRayBackward(&sigma[o], &colours[o * C], &delta[o], static_cast<size_t>(S), C, settings, renders[static_cast<size_t>(r)],
-                            &d_colour[static_cast<size_t>(r) * 3], d_sigma.data(), d_colours.data());
-    double dl = 0;
-    for (int j = 0; j < S; ++j) dl += static_cast<double>(d_sigma[static_cast<size_t>(j)] * sigma[o + static_cast<size_t>(j)]);
-    d_length[static_cast<size_t>(r)] = dl / directions[static_cast<size_t>(r)].norm();
-    for (int j = 0; j < S; ++j) {
-      d_out(0, static_cast<Eigen::Index>(o) + j) = d_sigma[static_cast<size_t>(j)];
-      for (int c = 0; c < C; ++c) d_out(1 + c, static_cast<Eigen::Index>(o) + j) = d_colours[static_cast<size_t>(j) * C + c];
+template <typename T>
+double BenerfProblem<T>::eventTerm(const Batch& batch, std::vector<T>& d_colour) const {
+  // Accumulated events against the change of the log grey renders at the window's ends.
+  const int C = channels_, first = static_cast<int>(batch.blur_pixels.size()) * views_;
+  const int Pe = static_cast<int>(batch.event_pixels.size()), windows = static_cast<int>(batch.window_begin.size());
+  if (Pe == 0) return 0;
+  std::vector<T> grey_a(static_cast<size_t>(Pe)), grey_b(static_cast<size_t>(Pe)), change(static_cast<size_t>(Pe));
+  std::vector<double> target(static_cast<size_t>(Pe));
+  double target_norm2 = 0;
+  T change_norm2 = 0;
+  for (int i = 0; i < Pe; ++i) {
+    const size_t n = static_cast<size_t>(i);
+    grey_a[n] = nerf::greyOf(rays_.render(first + 2 * i).colour, C);
+    grey_b[n] = nerf::greyOf(rays_.render(first + 2 * i + 1).colour, C);
+    change[n] = options_.log.logOf(grey_b[n]) - options_.log.logOf(grey_a[n]);
+    target[n] = accumulatedEvents(batch.event_pixels[n], batch.window_begin[static_cast<size_t>(i % windows)],
+                                  batch.window_end[static_cast<size_t>(i % windows)]);
+    target_norm2 += target[n] * target[n];
+    change_norm2 += change[n] * change[n];
+  }
+  double term = 0;
+  std::vector<T> d_change(static_cast<size_t>(Pe));
+  // Normalised comparison unless the thresholds are known and normalisation is off; a window
+  // without events compares directly with zero change.
+  if (target_norm2 > 0 && normalised_) {
+    const T tiny = T(1e-6);
+    const T norm = std::sqrt(change_norm2 + tiny * tiny);
+    const double target_norm = std::sqrt(target_norm2);
+    T dot = 0;
+    std::vector<T> g(static_cast<size_t>(Pe));
+    for (size_t n = 0; n < static_cast<size_t>(Pe); ++n) {
+      const T e = change[n] / norm - static_cast<T>(target[n] / target_norm);
+      term += static_cast<double>(e * e) / Pe;
+      g[n] = T(2) * e / static_cast<T>(Pe);
+      dot += change[n] * g[n];
+    }
+    for (size_t n = 0; n < static_cast<size_t>(Pe); ++n) d_change[n] = g[n] / norm - change[n] * dot / (norm * norm * norm);
+  } else {
+    for (size_t n = 0; n < static_cast<size_t>(Pe); ++n) {
+      const T e = change[n] - static_cast<T>(target[n]);
+      term += static_cast<double>(e * e) / Pe;
+      d_change[n] = T(2) * e / static_cast<T>(Pe);
     }
   }
-  const Matrix d_positions = field_->backward(d_out);
-
-  // Sample positions -> poses: p(t) is affine in t for a fixed pixel, so is its pose Jacobian:
-  // sum_j J(t_j)^T g_j = J(0)^T sum_j (1 - t_j) g_j + J(1)^T sum_j t_j g_j; and d = p(1) - p(0), so
-  // the length term adds (J(1) - J(0))^T (d / |d|) dL/d|d|.
-  const int threads = omp_get_max_threads();
-  std::vector<std::vector<Vector6>> pose_gradient(static_cast<size_t>(threads), std::vector<Vector6>(poses.size(), Vector6::Zero()));
-#pragma omp parallel for schedule(static)
-  for (int r = 0; r < R; ++r) {
-    Eigen::Vector3d g0 = Eigen::Vector3d::Zero(), g1 = Eigen::Vector3d::Zero();
-    for (int j = 0; j < S; ++j) {
-      Eigen::Vector3d g = d_positions.col(static_cast<Eigen::Index>(r) * S + j).template cast<double>();
-      g.z() *= options_.depth_scale;  // the field saw depth_scale * z
-      const double t = static_cast<double>(ts[static_cast<size_t>(r) * S + static_cast<size_t>(j)]);
-      g0 += (1 - t) * g;
-      g1 += t * g;
-    }
-    const Eigen::Vector3d& d = directions[static_cast<size_t>(r)];
-    const Eigen::Vector3d g_length = d / d.norm() * d_length[static_cast<size_t>(r)];
-    g0 -= g_length;
-    g1 += g_length;
-    if (g0.isZero(0) && g1.isZero(0)) continue;
-    const int p = rayPixel(r), k = rayPose(r);
-    const SE3& pose = poses[static_cast<size_t>(k)];
-    pose_gradient[static_cast<size_t>(omp_get_thread_num())][static_cast<size_t>(k)] +=
-        nerf::ndcPointPoseJacobian(camera_, pose, p % W, p / W, 0.0, options_.near).transpose() * g0 +
-        nerf::ndcPointPoseJacobian(camera_, pose, p % W, p / W, 1.0, options_.near).transpose() * g1;
+  const T beta = static_cast<T>(beta_);
+  for (int i = 0; i < Pe; ++i) {
+    const size_t n = static_cast<size_t>(i), ra = static_cast<size_t>(first + 2 * i);
+    const T d = beta * d_change[n];
+    nerf::greyBackward(-d * options_.log.logSlope(grey_a[n]), C, &d_colour[ra * 3]);
+    nerf::greyBackward(d * options_.log.logSlope(grey_b[n]), C, &d_colour[(ra + 1) * 3]);
   }
-  knot_gradient->setZero(6 * static_cast<Eigen::Index>(trajectory_.knots().size()));
-  for (size_t k = 0; k < poses.size(); ++k) {
-    Vector6 g = Vector6::Zero();
-    for (const auto& per_thread : pose_gradient) g += per_thread[k];
-    const KnotJacobians& J = jacobians[k];
-    for (int i = 0; i < J.count; ++i) knot_gradient->segment<6>(6 * (J.first_knot + i)) += J.d_pose_d_knot[static_cast<size_t>(i)].transpose() * g;
-  }
-  return loss;
+  return term;
 }
 
 template <typename T>
@@ -377,42 +306,20 @@ int BenerfProblem<T>::rowsPerRenderBatch() const {
 
 template <typename T>
 cv::Mat BenerfProblem<T>::renderRows(int64_t t_us, cv::Mat* disparity, int H) {
-  using Matrix = typename nerf::RadianceField<T>::Matrix;
-  const int C = channels_, S = options_.samples, W = camera_.width;
-  const SE3 pose = trajectory_.poseAt(t_us);
+  const int C = channels_, W = camera_.width;
+  const std::vector<SE3> pose = {trajectory_.poseAt(t_us)};
   cv::Mat image(H, W, CV_MAKETYPE(CV_32F, C));
   if (disparity) disparity->create(H, W, CV_32F);
-  const std::vector<float> centres(static_cast<size_t>(S), 0.5f);
-  const nerf::RenderSettings settings{};
+  nerf::RayBatch<T> batch(camera_, rays_options_);
   const int rows_per_batch = rowsPerRenderBatch();
   for (int y0 = 0; y0 < H; y0 += rows_per_batch) {
     const int rows = std::min(rows_per_batch, H - y0), R = rows * W;
-    Matrix positions(3, static_cast<Eigen::Index>(R) * S);
-    std::vector<T> ts(static_cast<size_t>(R) * S), delta(static_cast<size_t>(R) * S);
-#pragma omp parallel for schedule(static)
+    std::vector<typename nerf::RayBatch<T>::PixelRay> rays(static_cast<size_t>(R));
+    for (int r = 0; r < R; ++r) rays[static_cast<size_t>(r)] = {r % W, y0 + r / W, 0};
+    batch.setRays(pose, std::move(rays), nullptr);  // the samples' centres
+    batch.forward(*field_, false);
     for (int r = 0; r < R; ++r) {
-      const nerf::NdcRay ray = nerf::toNdc(nerf::worldRay(camera_, pose, r % W, y0 + r / W), camera_, options_.near);
-      const size_t o = static_cast<size_t>(r) * S;
-      sampleRayInto<T>(ray, S, centres.data(), options_.depth_scale, positions, static_cast<Eigen::Index>(o), &ts[o], &delta[o]);
-    }
-    // The field in chunks: the MLP keeps every layer's activations, which for a whole batch of
-    // rows would be gigabytes.
-    Matrix out(1 + C, positions.cols());
-    constexpr Eigen::Index kFieldChunk = 16384;
-    for (Eigen::Index c0 = 0; c0 < positions.cols(); c0 += kFieldChunk) {
-      const Eigen::Index count = std::min(kFieldChunk, positions.cols() - c0);
-      out.middleCols(c0, count) = field_->forward(positions.middleCols(c0, count));
-    }
-#pragma omp parallel for schedule(static)
-    for (int r = 0; r < R; ++r) {
-      std::vector<T> sigma(static_cast<size_t>(S)), colours(static_cast<size_t>(S) * C);
-      for (int j = 0; j < S; ++j) {
-        const Eigen::Index col = static_cast<Eigen::Index>(r) * S + j;
-        sigma[static_cast<size_t>(j)] = out(0, col);
-        for (int c = 0; c < C; ++c) colours[static_cast<size_t>(j) * C + c] = out(1 + c, col);
-      }
-      const size_t o = static_cast<size_t>(r) * S;
-      const nerf::RayRender<T> f = nerf::renderRay(sigma.data(), colours.data(), &delta[o], &ts[o], static_cast<size_t>(S), C, settings);
+      const nerf::RayRender<T>& f = batch.render(r);
       const int y = y0 + r / W, x = r % W;
       for (int c = 0; c < C; ++c) image.ptr<float>(y)[x * C + c] = static_cast<float>(f.colour[c]);
       if (disparity) {

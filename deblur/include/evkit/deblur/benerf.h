@@ -36,6 +36,7 @@
 #include "evkit/events/log_intensity.h"
 #include "evkit/nerf/camera.h"
 #include "evkit/nerf/field.h"
+#include "evkit/nerf/ray_batch.h"
 #include "evkit/spline/trajectory.h"
 
 namespace evkit {
@@ -195,6 +196,9 @@ class BenerfProblem {
 
  private:
   double accumulatedEvents(int pixel, int64_t t_begin, int64_t t_end) const;
+  // The two terms of the loss over the batch's rendered rays; each adds its dL/d(colour).
+  double blurTerm(const Batch& batch, std::vector<T>& d_colour) const;
+  double eventTerm(const Batch& batch, std::vector<T>& d_colour) const;
   int rowsPerRenderBatch() const;
   cv::Mat renderRows(int64_t t_us, cv::Mat* disparity, int rows);  // the first `rows` rows
 
@@ -205,6 +209,8 @@ class BenerfProblem {
   std::vector<cv::Mat> view_targets_;  // float32; empty: the blur term
   Trajectory trajectory_;
   std::unique_ptr<nerf::RadianceField<T>> field_;
+  nerf::RayBatchOptions rays_options_;
+  nerf::RayBatch<T> rays_;  // the training batch's rays, samples and renders
   double c_on_ = 1, c_off_ = 1;
   bool known_contrast_ = false;
   bool normalised_ = true;  // the event term's form

@@ -1,7 +1,8 @@
-// Fitting a radiance field to posed sharp images: the training building block that BeNeRF uses,
-// tested on its own. Each step renders a random batch of rays (stratified samples in NDC t, jittered),
-// takes the mean squared error against the pixels, back-propagates through the volume renderer and
-// the field, and takes an Adam step. Deterministic for a seed with one thread.
+// Fitting a radiance field to posed sharp images, and rendering one: the ray pipeline (ray_batch.h)
+// that BeNeRF trains with, here with the plainest loss. Each step renders a random batch of rays
+// (stratified samples in NDC t, jittered), takes the mean squared error against the pixels,
+// back-propagates through the volume renderer and the field, and takes an Adam step. Deterministic
+// for a seed with one thread.
 #pragma once
 
 #include <utility>
@@ -38,16 +39,6 @@ struct FitReport {
   std::vector<std::pair<int, double>> loss;  // (step, batch MSE)
   double seconds = 0;
 };
-
-// The samples of one ray: NDC positions (3 x samples), t, and interval lengths.
-struct RaySamples {
-  Eigen::Matrix<float, 3, Eigen::Dynamic> positions;
-  std::vector<float> t, delta;
-};
-// Stratified samples in t in [0, 1); jitter u in [0, 1) per sample (0.5: the centres).
-RaySamples sampleRay(const NdcRay& ray, int samples, const std::vector<float>& jitter);
-// Samples at given sorted t in [0, 1).
-RaySamples samplesAt(const NdcRay& ray, std::vector<float> t);
 
 // Importance sampling (NeRF's hierarchical sampling, Mildenhall et al. 2020 §5.2): `count` new
 // sample positions in [0, 1) drawn by inverting the piecewise-constant density of `weights` over
