@@ -1,5 +1,5 @@
-// BeNeRF's training: the start, the optional prefit, the schedule and the wall-time budget, the
-// final renders and the summary.
+// BeNeRF's training: the start (blur length, thresholds, views, the knots from the events), the
+// optional prefit, the schedule and the wall-time budget, the final renders and the summary.
 
 #include <omp.h>
 
@@ -26,6 +26,8 @@ using benerf_detail::writeCheckpoint;
 
 namespace {
 
+using Clock = std::chrono::steady_clock;
+
 // The ground-truth frame nearest to mid-exposure, when there is one at the camera's size.
 const Frame* midGroundTruth(const Observation& obs) {
   const Frame* best = nullptr;
@@ -37,171 +39,237 @@ const Frame* midGroundTruth(const Observation& obs) {
   return best;
 }
 
-}  // namespace
+// Sets OpenMP's thread count for one run and restores it afterwards.
+class ThreadScope {
+ public:
+  explicit ThreadScope(int threads) : saved_(omp_get_max_threads()) {
+    if (threads > 0) omp_set_num_threads(threads);
+  }
+  ~ThreadScope() { omp_set_num_threads(saved_); }
+  ThreadScope(const ThreadScope&) = delete;
+  ThreadScope& operator=(const ThreadScope&) = delete;
 
-DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& request) {
-  const auto start = std::chrono::steady_clock::now();
-  DeblurResult result;
-  BenerfOptions o = options_;
-  const int saved_threads = omp_get_max_threads();
-  if (o.threads > 0) omp_set_num_threads(o.threads);
-  struct RestoreThreads {
-    int n;
-    ~RestoreThreads() { omp_set_num_threads(n); }
-  } restore_threads{saved_threads};
+ private:
+  int saved_;
+};
 
-  int views = o.virtual_views;
+// What the run starts from: the thresholds (given, from contrast.txt, or estimated by EDI's search
+// inside its range), the number of virtual views and the measured blur length.
+struct Start {
+  BenerfOptions options;
+  int views = 0;
   double blur_px = 0;
+};
+
+Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& result) {
+  Start s{given, given.virtual_views, 0};
+  BenerfOptions& o = s.options;
   if (!o.contrast) o.contrast = obs.contrast;
   const bool estimate = !o.contrast && o.estimate_contrast && o.event_form == BenerfOptions::EventForm::kAuto;
-  if (views <= 0 || o.init == BenerfOptions::Init::kEvents || estimate) {
+  if (s.views <= 0 || o.init == BenerfOptions::Init::kEvents || estimate) {
     const BlurMeasurement m = measureBlur(obs, o.contrast);
-    blur_px = m.blur_px;
-    result.parameters["blur_px_measured"] = blur_px;
+    s.blur_px = m.blur_px;
+    result.parameters["blur_px_measured"] = s.blur_px;
     if (estimate && m.inside) {
       o.contrast = std::make_pair(m.c_on, m.c_off);
       result.parameters["contrast_estimated"] = m.c_on;
     }
   }
-  if (views <= 0) views = virtualViewsFor(blur_px);
-  BenerfProblem<float> problem(obs, o, views);
-  if (o.init == BenerfOptions::Init::kEvents) {
-    // The knots fitted to a constant rotation through identity at mid-exposure, each then moved by
-    // its random jitter.
-    const Vector3 omega = rotationFromEvents(obs, problem.camera(), blur_px);
-    Trajectory& trajectory = problem.trajectory();
-    std::vector<StampedPose> poses;
-    for (int k = 0; k <= 20; ++k) {
-      const double s = k / 20.0;
-      const int64_t t = trajectory.beginUs() + std::llround(s * static_cast<double>(trajectory.endUs() - trajectory.beginUs()));
-      poses.push_back({t, SE3(expSO3((s - 0.5) * omega), Vector3::Zero())});
-    }
-    const Trajectory fitted = fitTrajectory(trajectory.kind(), static_cast<int>(trajectory.knots().size()), trajectory.beginUs(), trajectory.endUs(), poses);
-    for (size_t k = 0; k < trajectory.knots().size(); ++k) trajectory.knots()[k] = fitted.knots()[k] * trajectory.knots()[k];
-    result.parameters["initial_rotation_deg"] = omega.norm() * 180 / std::numbers::pi;
-  }
-  nerf::AdamOptions field_adam_options;
-  field_adam_options.learning_rate = o.field_lr;
-  nerf::Adam<float> field_adam(problem.field().parameters(), field_adam_options);
-  const size_t knot_values = 6 * problem.trajectory().knots().size();
-  Eigen::VectorXd knot_step = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(knot_values)), knot_gradient = knot_step;
-  nerf::AdamOptions knot_adam_options;
-  knot_adam_options.learning_rate = o.knot_lr;
-  knot_adam_options.epsilon = 1e-12;
-  nerf::Adam<double> knot_adam({nerf::ParameterBlock<double>{knot_step.data(), knot_gradient.data(), knot_values, nullptr, 1}}, knot_adam_options);
-  std::mt19937_64 rng(o.seed);
+  if (s.views <= 0) s.views = virtualViewsFor(s.blur_px);
+  return s;
+}
 
-  int iterations = o.iterations;
-  int first = 0;
-  if (!o.resume.empty()) {
-    const Checkpoint c = readCheckpoint(o.resume, problem.field(), problem.trajectory(), field_adam, knot_adam, rng);
-    if (c.views != views) throw Error(o.resume + ": the checkpoint used " + std::to_string(c.views) + " virtual views, these settings " + std::to_string(views));
-    first = c.iteration;
-    iterations = std::max(iterations, c.iterations);
+// The knots fitted to a constant rotation through identity at mid-exposure, found from the events
+// (rotationFromEvents), each then moved by its random jitter.
+void initialiseFromEvents(const Observation& obs, BenerfProblem<float>& problem, double blur_px, DeblurResult& result) {
+  const Vector3 omega = rotationFromEvents(obs, problem.camera(), blur_px);
+  Trajectory& trajectory = problem.trajectory();
+  std::vector<StampedPose> poses;
+  for (int k = 0; k <= 20; ++k) {
+    const double s = k / 20.0;
+    const int64_t t = trajectory.beginUs() + std::llround(s * static_cast<double>(trajectory.endUs() - trajectory.beginUs()));
+    poses.push_back({t, SE3(expSO3((s - 0.5) * omega), Vector3::Zero())});
   }
-  // One learning-rate schedule over the prefit's steps and the training's.
-  const auto setSchedule = [&](int total) {
-    field_adam.options().decay_rate = knot_adam.options().decay_rate = o.lr_final;
-    field_adam.options().decay_steps = knot_adam.options().decay_steps = std::max(1, o.prefit + total);
-  };
-  setSchedule(iterations);
-  // One step of both optimisers; a non-finite loss or gradient is a loud error naming the step.
-  const auto trainStep = [&](const BenerfProblem<float>::Batch& batch, const char* step_name, int step) {
-    const auto loss = problem.evaluate(batch, &knot_gradient);
-    if (!std::isfinite(loss.total) || !knot_gradient.allFinite()) {
-      throw Error("benerf: the loss or its gradient became " + std::string(std::isfinite(loss.total) ? "non-finite" : "NaN/Inf") + " at " +
-                  step_name + " " + std::to_string(step) + " (blur term " + std::to_string(loss.blur) + ", event term " + std::to_string(loss.event) + ")");
+  const Trajectory fitted =
+      fitTrajectory(trajectory.kind(), static_cast<int>(trajectory.knots().size()), trajectory.beginUs(), trajectory.endUs(), poses);
+  for (size_t k = 0; k < trajectory.knots().size(); ++k) trajectory.knots()[k] = fitted.knots()[k] * trajectory.knots()[k];
+  result.parameters["initial_rotation_deg"] = omega.norm() * 180 / std::numbers::pi;
+}
+
+// The two optimisers (the field's; the knots' as right-perturbation steps), their one learning-rate
+// schedule over the prefit's and the training's steps, and one step of both.
+class Optimisers {
+ public:
+  Optimisers(BenerfProblem<float>& problem, const BenerfOptions& o)
+      : problem_(problem),
+        options_(o),
+        knot_values_(6 * problem.trajectory().knots().size()),
+        knot_step_(Eigen::VectorXd::Zero(static_cast<Eigen::Index>(knot_values_))),
+        knot_gradient_(knot_step_),
+        field_(problem.field().parameters(), nerf::AdamOptions{.learning_rate = o.field_lr}),
+        knots_({nerf::ParameterBlock<double>{knot_step_.data(), knot_gradient_.data(), knot_values_, nullptr, 1}},
+               nerf::AdamOptions{.learning_rate = o.knot_lr, .epsilon = 1e-12}) {}
+
+  void setSchedule(int iterations) {
+    field_.options().decay_rate = knots_.options().decay_rate = options_.lr_final;
+    field_.options().decay_steps = knots_.options().decay_steps = std::max(1, options_.prefit + iterations);
+  }
+
+  // One step of both; a non-finite loss or gradient is a loud error naming the step.
+  BenerfProblem<float>::Loss step(const BenerfProblem<float>::Batch& batch, const char* step_name, int step) {
+    const auto loss = problem_.evaluate(batch, &knot_gradient_);
+    if (!std::isfinite(loss.total) || !knot_gradient_.allFinite()) {
+      throw Error("benerf: the loss or its gradient became " + std::string(std::isfinite(loss.total) ? "non-finite" : "NaN/Inf") +
+                  " at " + step_name + " " + std::to_string(step) + " (blur term " + std::to_string(loss.blur) + ", event term " +
+                  std::to_string(loss.event) + ")");
     }
-    field_adam.step();
-    knot_step.setZero();
-    knot_adam.step();
-    problem.trajectory().applyKnotSteps(knot_step);
+    field_.step();
+    knot_step_.setZero();
+    knots_.step();
+    problem_.trajectory().applyKnotSteps(knot_step_);
     return loss;
-  };
-  if (o.prefit > 0 && o.resume.empty()) {
-    // The field and knots fitted to EDI's latent frames at the views' times (every band open, no
-    // event term), with the training's optimisers, so that their moments carry over.
-    const auto prefit_start = std::chrono::steady_clock::now();
-    const Trajectory& trajectory = problem.trajectory();
-    DeblurRequest edi_request;
-    for (int k = 0; k < views; ++k) {
-      edi_request.times_us.push_back(trajectory.beginUs() + std::llround(problem.viewTime(k) * static_cast<double>(trajectory.endUs() - trajectory.beginUs())));
-    }
-    std::vector<cv::Mat> targets;
-    for (const Frame& f : EdiDeblurrer{EdiOptions{}}.run(obs, edi_request).frames) targets.push_back(toFloat(f.image));
-    problem.setViewTargets(std::move(targets));
-    std::mt19937_64 prefit_rng(o.seed + 1);
-    for (int it = 0; it < o.prefit; ++it) {
-      auto batch = problem.sampleBatch(prefit_rng);
-      batch.event_pixels.clear();
-      batch.window_begin.clear();
-      batch.window_end.clear();
-      const auto loss = trainStep(batch, "prefit iteration", it);
-      if (it + 1 == o.prefit) result.parameters["prefit_final_term"] = loss.blur;
-    }
-    problem.setViewTargets({});
-    result.timings_s["prefit"] = secondsSince(prefit_start);
   }
-  result.timings_s["setup"] = secondsSince(start);
 
-  const Frame* gt = midGroundTruth(obs);
-  int psnr_every = gt ? std::max(1, iterations / 10) : 0;
-  // The final renders: the requested frames, and the mid-exposure frame for the disparity unless
-  // it is one of them.
-  const int64_t mid = obs.blurry.midExposure();
-  const bool mid_requested = std::find(request.times_us.begin(), request.times_us.end(), mid) != request.times_us.end();
-  const int final_renders = static_cast<int>(request.times_us.size()) + (mid_requested ? 0 : 1);
-  const auto train_start = std::chrono::steady_clock::now();
-  double curve_seconds = 0;  // spent on the training-PSNR renders
-  double loss_sum = 0, blur_sum = 0, event_sum = 0, last_blur = 0, last_event = 0;
-  int loss_count = 0;
-  const int bands = problem.field().bands();
+  nerf::Adam<float>& field() { return field_; }
+  nerf::Adam<double>& knots() { return knots_; }
+
+ private:
+  BenerfProblem<float>& problem_;
+  const BenerfOptions& options_;
+  size_t knot_values_;
+  Eigen::VectorXd knot_step_, knot_gradient_;
+  nerf::Adam<float> field_;
+  nerf::Adam<double> knots_;
+};
+
+// The field and knots fitted to EDI's latent frames at the views' times (every band open, no event
+// term), with the training's optimisers, so that their moments carry over.
+void prefit(const Observation& obs, BenerfProblem<float>& problem, Optimisers& optimisers, const BenerfOptions& o,
+            DeblurResult& result) {
+  const auto start = Clock::now();
+  const Trajectory& trajectory = problem.trajectory();
+  DeblurRequest edi_request;
+  for (int k = 0; k < problem.virtualViews(); ++k) {
+    edi_request.times_us.push_back(trajectory.beginUs() +
+                                   std::llround(problem.viewTime(k) * static_cast<double>(trajectory.endUs() - trajectory.beginUs())));
+  }
+  std::vector<cv::Mat> targets;
+  for (const Frame& f : EdiDeblurrer{EdiOptions{}}.run(obs, edi_request).frames) targets.push_back(toFloat(f.image));
+  problem.setViewTargets(std::move(targets));
+  std::mt19937_64 rng(o.seed + 1);
+  for (int it = 0; it < o.prefit; ++it) {
+    auto batch = problem.sampleBatch(rng);
+    batch.event_pixels.clear();
+    batch.window_begin.clear();
+    batch.window_end.clear();
+    const auto loss = optimisers.step(batch, "prefit iteration", it);
+    if (it + 1 == o.prefit) result.parameters["prefit_final_term"] = loss.blur;
+  }
+  problem.setViewTargets({});
+  result.timings_s["prefit"] = secondsSince(start);
+}
+
+// The training loop with its curve, the training-PSNR renders, the wall-time budget and the
+// checkpoints.
+class Training {
+ public:
+  Training(const Observation& obs, const DeblurRequest& request, BenerfProblem<float>& problem, Optimisers& optimisers,
+           const BenerfOptions& o, Clock::time_point run_start)
+      : obs_(obs), request_(request), problem_(problem), optimisers_(optimisers), o_(o), run_start_(run_start) {}
+
+  // Runs iterations [first, iterations) (fewer when the budget or stop_after says so); returns the
+  // iteration count it ended with.
+  int run(int first, int iterations, std::mt19937_64& rng, DeblurResult& result);
+
+  double lastBlurTerm() const { return last_blur_; }
+  double lastEventTerm() const { return last_event_; }
+
+ private:
+  void recordCurve(int done, int iterations, DeblurResult& result);
+  void fitBudget(int done, int& iterations);
+
+  const Observation& obs_;
+  const DeblurRequest& request_;
+  BenerfProblem<float>& problem_;
+  Optimisers& optimisers_;
+  const BenerfOptions& o_;
+  Clock::time_point run_start_, train_start_;
+  const Frame* gt_ = nullptr;
+  int psnr_every_ = 0;
+  double curve_seconds_ = 0;  // spent on the training-PSNR renders
+  double loss_sum_ = 0, blur_sum_ = 0, event_sum_ = 0, last_blur_ = 0, last_event_ = 0;
+  int loss_count_ = 0;
+};
+
+int Training::run(int first, int iterations, std::mt19937_64& rng, DeblurResult& result) {
+  gt_ = midGroundTruth(obs_);
+  psnr_every_ = gt_ ? std::max(1, iterations / 10) : 0;
+  train_start_ = Clock::now();
+  const int bands = problem_.field().bands();
   for (int it = first; it < iterations; ++it) {
-    if (o.coarse_to_fine > 0) {
-      const double opened = std::clamp(static_cast<double>(it) / (o.coarse_to_fine * iterations), 0.0, 1.0);
-      problem.field().setBandLimit(1 + (bands - 2) * opened);
+    if (o_.coarse_to_fine > 0) {
+      const double opened = std::clamp(static_cast<double>(it) / (o_.coarse_to_fine * iterations), 0.0, 1.0);
+      problem_.field().setBandLimit(1 + (bands - 2) * opened);
     }
-    const auto loss = trainStep(problem.sampleBatch(rng), "iteration", it);
-    loss_sum += loss.total;
-    blur_sum += loss.blur;
-    event_sum += loss.event;
-    ++loss_count;
+    const auto loss = optimisers_.step(problem_.sampleBatch(rng), "iteration", it);
+    loss_sum_ += loss.total;
+    blur_sum_ += loss.blur;
+    event_sum_ += loss.event;
+    ++loss_count_;
     const int done = it + 1;
-    if (done % o.curve_every == 0 || done == iterations) {
-      result.curve.emplace_back(done, loss_sum / loss_count);
-      if (request.progress) request.progress(done, iterations, loss_sum / loss_count);
-      last_blur = blur_sum / loss_count;
-      last_event = event_sum / loss_count;
-      loss_sum = blur_sum = event_sum = 0;
-      loss_count = 0;
-    }
-    if (psnr_every > 0 && (done % psnr_every == 0 || done == iterations)) {
-      const auto curve_start = std::chrono::steady_clock::now();
-      result.curve_psnr.emplace_back(done, psnr(problem.render(mid), gt->image));
-      curve_seconds += secondsSince(curve_start);
-    }
-    // A wall-time budget: after a few iterations, the count that fits with the renders still to
-    // come (the schedule follows); the training-PSNR curve gets at most a quarter of what is left.
-    if (o.budget_seconds > 0 && done == first + 20) {
-      const double per_iteration = (secondsSince(train_start) - curve_seconds) / 20;
-      const double render_seconds = problem.renderSeconds();
-      double left = o.budget_seconds * 0.95 - secondsSince(start) - final_renders * render_seconds;
-      int curve_renders = gt ? std::min(10, static_cast<int>(0.25 * std::max(0.0, left) / render_seconds)) : 0;
-      left -= curve_renders * render_seconds;
-      iterations = std::max(done + 1, static_cast<int>(left / per_iteration) + done);
-      setSchedule(iterations);
-      psnr_every = curve_renders > 0 ? std::max(1, iterations / curve_renders) : 0;
-    }
-    const bool stop = o.stop_after > 0 && done >= o.stop_after;
-    if (!o.checkpoint.empty() && (done % o.checkpoint_every == 0 || done == iterations || stop)) {
-      writeCheckpoint(o.checkpoint, Checkpoint{done, iterations, views}, problem.field(), problem.trajectory(), field_adam, knot_adam, rng);
+    recordCurve(done, iterations, result);
+    if (o_.budget_seconds > 0 && done == first + 20) fitBudget(done, iterations);
+    const bool stop = o_.stop_after > 0 && done >= o_.stop_after;
+    if (!o_.checkpoint.empty() && (done % o_.checkpoint_every == 0 || done == iterations || stop)) {
+      writeCheckpoint(o_.checkpoint, Checkpoint{done, iterations, problem_.virtualViews()}, problem_.field(), problem_.trajectory(),
+                      optimisers_.field(), optimisers_.knots(), rng);
     }
     if (stop) break;
   }
-  result.timings_s["train"] = secondsSince(train_start);
-  problem.field().setBandLimit(bands);
+  result.timings_s["train"] = secondsSince(train_start_);
+  problem_.field().setBandLimit(bands);
+  return iterations;
+}
 
-  const auto render_start = std::chrono::steady_clock::now();
+void Training::recordCurve(int done, int iterations, DeblurResult& result) {
+  if (done % o_.curve_every == 0 || done == iterations) {
+    result.curve.emplace_back(done, loss_sum_ / loss_count_);
+    if (request_.progress) request_.progress(done, iterations, loss_sum_ / loss_count_);
+    last_blur_ = blur_sum_ / loss_count_;
+    last_event_ = event_sum_ / loss_count_;
+    loss_sum_ = blur_sum_ = event_sum_ = 0;
+    loss_count_ = 0;
+  }
+  if (psnr_every_ > 0 && (done % psnr_every_ == 0 || done == iterations)) {
+    const auto start = Clock::now();
+    result.curve_psnr.emplace_back(done, psnr(problem_.render(obs_.blurry.midExposure()), gt_->image));
+    curve_seconds_ += secondsSince(start);
+  }
+}
+
+// A wall-time budget: after a few iterations, the count that fits with the renders still to come
+// (the schedule follows); the training-PSNR curve gets at most a quarter of what is left.
+void Training::fitBudget(int done, int& iterations) {
+  const int64_t mid = obs_.blurry.midExposure();
+  const auto& times = request_.times_us;
+  const bool mid_requested = std::find(times.begin(), times.end(), mid) != times.end();
+  const int final_renders = static_cast<int>(times.size()) + (mid_requested ? 0 : 1);
+  const double per_iteration = (secondsSince(train_start_) - curve_seconds_) / 20;
+  const double render_seconds = problem_.renderSeconds();
+  double left = o_.budget_seconds * 0.95 - secondsSince(run_start_) - final_renders * render_seconds;
+  const int curve_renders = gt_ ? std::min(10, static_cast<int>(0.25 * std::max(0.0, left) / render_seconds)) : 0;
+  left -= curve_renders * render_seconds;
+  iterations = std::max(done + 1, static_cast<int>(left / per_iteration) + done);
+  optimisers_.setSchedule(iterations);
+  psnr_every_ = curve_renders > 0 ? std::max(1, iterations / curve_renders) : 0;
+}
+
+// The requested frames, the mid-exposure disparity (an extra render unless mid-exposure is asked
+// for) and the trajectory over the exposure.
+void renderResults(const Observation& obs, const DeblurRequest& request, BenerfProblem<float>& problem, DeblurResult& result) {
+  const auto start = Clock::now();
+  const int64_t mid = obs.blurry.midExposure();
+  const bool mid_requested = std::find(request.times_us.begin(), request.times_us.end(), mid) != request.times_us.end();
   for (int64_t t : request.times_us) {
     Frame f;
     f.image = problem.render(t, t == mid ? &result.disparity : nullptr);
@@ -210,7 +278,7 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
     result.frames.push_back(std::move(f));
   }
   if (!mid_requested) problem.render(mid, &result.disparity);
-  result.timings_s["render"] = secondsSince(render_start);
+  result.timings_s["render"] = secondsSince(start);
   std::vector<StampedPose> trajectory;
   const int64_t t0 = obs.blurry.exposure_start_us, t1 = obs.blurry.exposure_end_us;
   for (int k = 0; k <= 100; ++k) {
@@ -218,8 +286,13 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
     trajectory.push_back({t, problem.trajectory().poseAt(t)});
   }
   result.trajectory = std::move(trajectory);
+}
+
+void summarise(BenerfProblem<float>& problem, const BenerfOptions& o, int iterations, const Training& training,
+               DeblurResult& result) {
   size_t parameters = 0;
   for (const auto& b : problem.field().parameters()) parameters += b.size;
+  const int views = problem.virtualViews();
   result.parameters["iterations"] = iterations;
   result.parameters["virtual_views"] = views;
   result.parameters["field_parameters"] = static_cast<double>(parameters);
@@ -229,14 +302,47 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
   result.parameters["blur_weight"] = problem.blurWeight();
   result.parameters["events_normalised"] = problem.normalisedEvents() ? 1.0 : 0.0;
   result.parameters["rays_per_step"] = std::max(1, o.blur_rays / views) * views + 2 * o.event_rays;
-  if (!result.curve.empty()) {
-    result.parameters["final_loss"] = result.curve.back().second;
-    // The two terms over the last curve interval: how well the model explains the blurry frame
-    // (as a PSNR of the re-blurred renders against it) and the events.
-    result.parameters["final_blur_term"] = last_blur;
-    result.parameters["final_event_term"] = last_event;
-    if (last_blur > 0) result.parameters["blur_fit_psnr"] = -10 * std::log10(last_blur);
+  if (result.curve.empty()) return;
+  result.parameters["final_loss"] = result.curve.back().second;
+  // The two terms over the last curve interval: how well the model explains the blurry frame (as a
+  // PSNR of the re-blurred renders against it) and the events.
+  const double last_blur = training.lastBlurTerm();
+  result.parameters["final_blur_term"] = last_blur;
+  result.parameters["final_event_term"] = training.lastEventTerm();
+  if (last_blur > 0) result.parameters["blur_fit_psnr"] = -10 * std::log10(last_blur);
+}
+
+}  // namespace
+
+DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& request) {
+  const auto start = Clock::now();
+  DeblurResult result;
+  const ThreadScope threads(options_.threads);
+  const Start s = prepare(obs, options_, result);
+  const BenerfOptions& o = s.options;
+  BenerfProblem<float> problem(obs, o, s.views);
+  if (o.init == BenerfOptions::Init::kEvents) initialiseFromEvents(obs, problem, s.blur_px, result);
+  Optimisers optimisers(problem, o);
+  std::mt19937_64 rng(o.seed);
+  int iterations = o.iterations;
+  int first = 0;
+  if (!o.resume.empty()) {
+    const Checkpoint c = readCheckpoint(o.resume, problem.field(), problem.trajectory(), optimisers.field(), optimisers.knots(), rng);
+    if (c.views != s.views) {
+      throw Error(o.resume + ": the checkpoint used " + std::to_string(c.views) + " virtual views, these settings " +
+                  std::to_string(s.views));
+    }
+    first = c.iteration;
+    iterations = std::max(iterations, c.iterations);
   }
+  optimisers.setSchedule(iterations);
+  if (o.prefit > 0 && o.resume.empty()) prefit(obs, problem, optimisers, o, result);
+  result.timings_s["setup"] = secondsSince(start);
+
+  Training training(obs, request, problem, optimisers, o, start);
+  iterations = training.run(first, iterations, rng, result);
+  renderResults(obs, request, problem, result);
+  summarise(problem, o, iterations, training, result);
   result.timings_s["total"] = secondsSince(start);
   return result;
 }
