@@ -12,8 +12,9 @@
 #include <opencv2/imgproc.hpp>
 
 #include "common.h"
-#include "evkit/events/atomic_file.h"
 #include "evkit/base/error.h"
+#include "evkit/deblur/benerf.h"
+#include "evkit/events/atomic_file.h"
 #include "evkit/spline/lie.h"
 
 namespace evkit::cli {
@@ -22,24 +23,13 @@ namespace fs = std::filesystem;
 
 namespace {
 
-// A budget token -> its label and the BeNeRF settings it stands for.
+// A budget token -> its label and the BeNeRF setting it stands for (parseBenerfBudget's grammar).
 std::pair<std::string, MethodSettings> parseBudget(const std::string& token) {
-  if (token == "fast" || token == "balanced" || token == "quality") return {token, {{"budget", token}}};
-  size_t used = 0;
-  double value = 0;
   try {
-    value = std::stod(token, &used);
-  } catch (const std::exception&) {
-    used = 0;
+    return {parseBenerfBudget(token).label, {{"budget", token}}};
+  } catch (const Error& e) {
+    throw UsageError(std::string("--budgets: ") + e.what());
   }
-  const std::string unit = token.substr(used);
-  if (used > 0 && value > 0 && std::isfinite(value)) {
-    if (unit.empty() && value == std::floor(value) && value <= 1e7) {
-      return {token + " it", {{"budget", "fast"}, {"iterations", token}}};
-    }
-    if (unit == "s") return {fixedOrDash(value, value == std::floor(value) ? 0 : 1) + " s", {{"budget", token.substr(0, used)}}};
-  }
-  throw UsageError("--budgets: '" + token + "' is not an iteration count, fast|balanced|quality or seconds (e.g. 60s)");
 }
 
 std::string csvField(const std::string& v) {
@@ -176,24 +166,17 @@ std::vector<BenchRun> benchRuns(const std::vector<std::string>& methods, const s
   };
   for (const std::string& m : methods) {
     if (m == "blurry" || m == "edi") {
-      runs.push_back({m, "-", m, with_extra(m, {})});
+      runs.push_back({m, "-", makeMethod(m, with_extra(m, {}))});
     } else if (m == "benerf" || m == "benerf-mlp") {
       const std::vector<std::string>& list = m == "benerf" ? budgets : mlp_budgets;
       if (list.empty()) throw UsageError("no budgets for " + m);
       for (const std::string& token : list) {
         auto [label, settings] = parseBudget(token);
         if (m == "benerf-mlp") settings["field"] = "mlp";
-        runs.push_back({m, label, "benerf", with_extra(m, settings)});
+        runs.push_back({m, label, makeMethod("benerf", with_extra(m, settings))});
       }
     } else {
       throw UsageError("--methods: unknown method '" + m + "' (known: blurry, edi, benerf, benerf-mlp)");
-    }
-  }
-  for (const BenchRun& r : runs) {
-    try {
-      makeDeblurrer(r.deblurrer, r.settings);
-    } catch (const Error& e) {
-      throw UsageError(e.what());
     }
   }
   return runs;
@@ -221,7 +204,7 @@ BenchRow runBench(const Observation& obs, const std::string& group, const std::s
   row.budget = run.budget;
   row.rotation_truth_deg = exposureRotationDeg(obs.gt_poses);
   try {
-    MethodReport r = runMethod(obs, run.deblurrer, run.settings, completeRequest(obs, {}), out_dir);
+    MethodReport r = runMethod(obs, run.deblurrer, completeRequest(obs, {}), out_dir);
     row.wall_s = r.wall_s;
     row.psnr = r.psnr_mid;
     row.ssim = r.ssim_mid;

@@ -17,8 +17,7 @@ namespace evkit::cli {
 struct BenchRun {
   std::string method;  // label: blurry, edi, benerf, benerf-mlp
   std::string budget;  // "-" for methods without one, else e.g. "500 it", "fast", "60 s"
-  std::string deblurrer;  // the registry name (benerf-mlp runs benerf with field=mlp)
-  MethodSettings settings;
+  Method deblurrer;    // made once (benerf-mlp runs benerf with field=mlp)
 };
 
 // The runs for `methods` (blurry, edi, benerf, benerf-mlp): BeNeRF once per entry of `budgets`,

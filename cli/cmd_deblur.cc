@@ -83,25 +83,29 @@ int runDeblur(const Args& args) {
   po::options_description opts("options");
   addInputOptions(opts);
   opts.add_options()("method", po::value<std::string>()->default_value("edi"), "blurry, edi or benerf")(
-      "set", po::value<std::vector<std::string>>()->composing(), "method setting KEY=VALUE (repeatable; edi: contrast, search, c_min, c_max, margin_us; benerf: budget=fast|balanced|quality|SECONDS, "
-      "preset=synthetic|real, contrast=C[,C_off], field=hash|mlp, iterations, views, checkpoint, resume, ... see the README)")(
-      "out", po::value<std::string>()->required(), "output folder");
+      "set", po::value<std::vector<std::string>>()->composing(), "method setting KEY=VALUE (repeatable; --settings lists them)")(
+      "settings", "list the method's settings with their types, defaults and meaning, and exit")(
+      "out", po::value<std::string>(), "output folder");
   po::positional_options_description pos;
   pos.add("observation", 1);
   po::variables_map vm;
   if (!parseArgs(args, "usage: evkit deblur OBS --method M --out DIR  |  evkit deblur --recording FILE --frame N --out DIR", opts, pos, vm)) {
     return kExitOk;
   }
-  const Observation obs = loadInput(vm);
   const std::string method = vm["method"].as<std::string>();
-  MethodSettings settings = parseSettings(vm);
-  try {
-    makeDeblurrer(method, settings);
-  } catch (const Error& e) {
-    throw UsageError(e.what());
+  if (vm.count("settings")) {
+    try {
+      std::cout << method << " settings (--set KEY=VALUE):\n" << deblurrerHelp(method);
+    } catch (const Error& e) {
+      throw UsageError(e.what());
+    }
+    return kExitOk;
   }
+  if (!vm.count("out")) throw UsageError("the option '--out' is required but missing");
+  const Method made = makeMethod(method, parseSettings(vm));
+  const Observation obs = loadInput(vm);
   const DeblurRequest request = completeRequest(obs, parseTimes(vm, obs));
-  const MethodReport r = runMethod(obs, method, settings, request, vm["out"].as<std::string>());
+  const MethodReport r = runMethod(obs, made, request, vm["out"].as<std::string>());
   std::cerr << method << ": " << r.result.frames.size() << " frames in " << fmt(r.wall_s, "%.3f") << " s; PSNR(mid) "
             << fmt(r.psnr_mid, "%.2f") << " dB, SSIM(mid) " << fmt(r.ssim_mid, "%.4f") << ", BRISQUE(mid) " << fmt(r.brisque_mid, "%.1f")
             << " -> " << vm["out"].as<std::string>() << "\n";
@@ -125,21 +129,17 @@ int runCompare(const Args& args) {
     if (dot == std::string::npos) throw UsageError("--set: expected METHOD.KEY=VALUE, got '" + key + "'");
     settings[key.substr(0, dot)][key.substr(dot + 1)] = value;
   }
-  for (const std::string& m : methods) {
-    try {
-      makeDeblurrer(m, settings[m]);
-    } catch (const Error& e) {
-      throw UsageError(e.what());
-    }
-  }
+  std::vector<Method> made;
+  for (const std::string& m : methods) made.push_back(makeMethod(m, settings[m]));
   const Observation obs = loadInput(vm);
   const DeblurRequest request = completeRequest(obs, parseTimes(vm, obs));
   const std::string out = vm.count("out") ? vm["out"].as<std::string>() : "";
   std::vector<MethodReport> reports;
   std::printf("%-10s %10s %8s %10s %11s\n", "method", "PSNR(mid)", "SSIM", "BRISQUE", "wall time");
-  for (const std::string& m : methods) {
+  for (const Method& method : made) {
+    const std::string& m = method.name;
     try {
-      reports.push_back(runMethod(obs, m, settings[m], request, out.empty() ? "" : out + "/" + m));
+      reports.push_back(runMethod(obs, method, request, out.empty() ? "" : out + "/" + m));
     } catch (const Error& e) {
       std::fprintf(stderr, "evkit compare: %s failed: %s (the other methods' results are kept)\n", m.c_str(), e.what());
       continue;

@@ -100,14 +100,9 @@ int runDemo(const Args& args) {
   }
   MethodSettings benerf = {{"budget", vm["budget"].as<std::string>()}, {"seed", std::to_string(seed)}};
   if (vm.count("threads")) benerf["threads"] = std::to_string(vm["threads"].as<int>());
-  const std::vector<BenchRun> runs = {{"blurry", "-", "blurry", {}}, {"edi", "-", "edi", {}}, {"benerf", vm["budget"].as<std::string>(), "benerf", benerf}};
-  for (const BenchRun& r : runs) {
-    try {
-      makeDeblurrer(r.deblurrer, r.settings);
-    } catch (const Error& e) {
-      throw UsageError(e.what());
-    }
-  }
+  const std::vector<BenchRun> runs = {{"blurry", "-", makeMethod("blurry", {})},
+                                      {"edi", "-", makeMethod("edi", {})},
+                                      {"benerf", vm["budget"].as<std::string>(), makeMethod("benerf", benerf)}};
 
   const std::string obs_dir = (dir / "observation").string();
   std::cout << "1. generating the " << vm["preset"].as<std::string>() << " scene at " << o.width << "x" << o.height << ", blur "

@@ -114,11 +114,20 @@ DeblurRequest completeRequest(const Observation& obs, DeblurRequest request) {
   return request;
 }
 
-MethodReport runMethod(const Observation& obs, const std::string& method, const MethodSettings& settings,
-                       const DeblurRequest& request, const std::string& out_dir) {
+Method makeMethod(const std::string& name, const MethodSettings& settings) {
+  try {
+    return {name, settings, makeDeblurrer(name, settings)};
+  } catch (const Error& e) {
+    throw UsageError(e.what());
+  }
+}
+
+MethodReport runMethod(const Observation& obs, const Method& m, const DeblurRequest& request, const std::string& out_dir) {
+  const std::string& method = m.name;
+  const MethodSettings& settings = m.settings;
+  Deblurrer* deblurrer = m.deblurrer.get();
   MethodReport report;
   report.method = method;
-  auto deblurrer = makeDeblurrer(method, settings);
   const auto start = std::chrono::steady_clock::now();
   DeblurRequest with_progress = request;
   std::optional<Progress> progress;

@@ -2,6 +2,7 @@
 // a latent video, the trajectory, and a JSON summary with timings and metrics against gt/.
 #pragma once
 
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -23,10 +24,18 @@ struct MethodReport {
 // Adds the ground truth's times to the request (so that metrics exist) and the middle.
 DeblurRequest completeRequest(const Observation& obs, DeblurRequest request);
 
-// Runs `method` and, when out_dir is not empty, writes <t_us>.png (linear, the input's bit depth),
-// latent.avi (sRGB-encoded for viewing), trajectory.txt (TUM) and summary.json into it.
-MethodReport runMethod(const Observation& obs, const std::string& method, const MethodSettings& settings,
-                       const DeblurRequest& request, const std::string& out_dir);
+// A method made from its name and settings, once: a bad name or setting is a UsageError here,
+// before anything runs.
+struct Method {
+  std::string name;
+  MethodSettings settings;
+  std::shared_ptr<Deblurrer> deblurrer;
+};
+Method makeMethod(const std::string& name, const MethodSettings& settings);
+
+// Runs the method and, when out_dir is not empty, writes <t_us>.png (linear, the input's bit
+// depth), latent.avi (sRGB-encoded for viewing), trajectory.txt (TUM) and summary.json into it.
+MethodReport runMethod(const Observation& obs, const Method& method, const DeblurRequest& request, const std::string& out_dir);
 
 std::string frameName(int64_t t_us);
 

@@ -22,8 +22,9 @@ CC=clang CXX=clang++ cmake -S . -B build-fuzz -G Ninja -DCMAKE_BUILD_TYPE=RelWit
   -DEVKIT_BUILD_TESTS=OFF -DEVKIT_BUILD_BENCHMARKS=OFF -DEVKIT_NATIVE=OFF -DCMAKE_UNITY_BUILD=ON >/dev/null
 cmake --build build-fuzz -j "$(nproc)" --target evkit_fuzzers evkit >/dev/null
 
-work=build-fuzz/work
-seeds=build-fuzz/seeds
+# EVKIT_FUZZ_TAG keeps the work of runs side by side apart (two campaigns on two cores).
+work=build-fuzz/work${EVKIT_FUZZ_TAG:+-$EVKIT_FUZZ_TAG}
+seeds=build-fuzz/seeds${EVKIT_FUZZ_TAG:+-$EVKIT_FUZZ_TAG}
 rm -rf "$work" "$seeds"
 mkdir -p "$work" "$seeds" build-fuzz/artifacts
 for r in "${readers[@]}"; do mkdir -p "$seeds/$r"; done

@@ -1,4 +1,4 @@
-// BeNeRF's budgets and its `--set KEY=VALUE` settings.
+// BeNeRF's budgets and its settings, each declared once in benerfSettings().
 
 #include <cctype>
 #include <cmath>
@@ -8,59 +8,150 @@
 
 namespace evkit {
 
-BenerfOptions benerfBudget(const std::string& name) {
-  BenerfOptions o;
-  if (name == "fast") {
-    o.iterations = 1000;
-    o.blur_rays = 2048;
-    o.event_rays = 2048;
-    o.samples = 8;
-    o.hash.grid.levels = 8;
-    o.hash.grid.log2_table = 15;
-  } else if (name == "balanced") {  // twice fast's steps and table (32 samples, 1,024 + 2 x 1,024 rays until session 8)
-    o.iterations = 2000;
-    o.blur_rays = 2048;
-    o.event_rays = 2048;
-    o.samples = 8;
-    o.hash.grid.levels = 8;
-    o.hash.grid.log2_table = 16;
-  } else if (name == "quality") {  // twice balanced's steps and table (6,000 iterations, 48 samples, 12 levels until session 9)
-    o.iterations = 4000;
-    o.blur_rays = 2048;
-    o.event_rays = 2048;
-    o.samples = 8;
-    o.hash.grid.levels = 8;
-    o.hash.grid.log2_table = 17;
-  } else {
-    throw Error("benerf: unknown budget '" + name + "' (known: fast, balanced, quality, or seconds)");
-  }
-  return o;
-}
-
 namespace {
 
-double number(const std::string& key, const std::string& value) { return settingNumber("benerf", key, value); }
-
-int settingInt(const std::string& key, const std::string& value, int min) {
-  const double v = number(key, value);
-  if (v != std::floor(v) || v < min || v > 1e9) throw Error("benerf: setting " + key + "=" + value + " must be an integer >= " + std::to_string(min));
+int positiveInt(const std::string& key, const std::string& value, int min, int max) {
+  const double v = settingNumber("benerf", key, value);
+  if (v != std::floor(v) || v < min || v > max) {
+    throw Error("benerf: setting " + key + "=" + value + " must be an integer in [" + std::to_string(min) + ", " + std::to_string(max) + "]");
+  }
   return static_cast<int>(v);
 }
 
 }  // namespace
 
-std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
-  BenerfOptions o = benerfBudget("balanced");
-  if (const auto b = settings.find("budget"); b != settings.end()) {
-    const std::string& v = b->second;
-    if (!v.empty() && (std::isdigit(static_cast<unsigned char>(v[0])) != 0 || v[0] == '.')) {
-      o.budget_seconds = number("budget", v);
-      if (!(o.budget_seconds > 0)) throw Error("benerf: budget must be fast, balanced, quality or a positive number of seconds");
-      o.iterations = 1000000;
-    } else {
-      o = benerfBudget(v);
+BenerfOptions benerfBudget(const std::string& name) {
+  BenerfOptions o;
+  o.blur_rays = 2048;
+  o.event_rays = 2048;
+  o.samples = 8;
+  o.hash.grid.levels = 8;
+  if (name == "fast") {
+    o.iterations = 1000;
+    o.hash.grid.log2_table = 15;
+  } else if (name == "balanced") {  // twice fast's steps and table
+    o.iterations = 2000;
+    o.hash.grid.log2_table = 16;
+  } else if (name == "quality") {  // twice balanced's steps and table
+    o.iterations = 4000;
+    o.hash.grid.log2_table = 17;
+  } else {
+    throw Error("benerf: unknown budget '" + name + "' (known: fast, balanced, quality, Ns for seconds, N for iterations)");
+  }
+  return o;
+}
+
+BenerfBudget parseBenerfBudget(const std::string& token) {
+  if (token == "fast" || token == "balanced" || token == "quality") return {token, benerfBudget(token)};
+  size_t used = 0;
+  double value = 0;
+  try {
+    value = std::stod(token, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  const std::string unit = token.substr(used);
+  const bool digits = !token.empty() && (std::isdigit(static_cast<unsigned char>(token[0])) != 0 || token[0] == '.');
+  if (digits && used > 0 && value > 0 && std::isfinite(value)) {
+    if (unit == "s") {
+      BenerfOptions o = benerfBudget("balanced");
+      o.budget_seconds = value;
+      o.iterations = 1000000;  // the budget sets the count after a few steps
+      return {shortNumber(value) + " s", o};
+    }
+    if (unit.empty() && value == std::floor(value) && value <= 1e7) {
+      BenerfOptions o = benerfBudget("fast");
+      o.iterations = static_cast<int>(value);
+      return {token + " it", o};
     }
   }
+  throw Error("benerf: budget '" + token + "' is not fast, balanced, quality, seconds (60s) or an iteration count of fast (250)");
+}
+
+const SettingsTable<BenerfOptions>& benerfSettings() {
+  using O = BenerfOptions;
+  using Field = O::FieldKind;
+  static const SettingsTable<O> table = [] {
+    SettingsTable<O> t("benerf");
+    const SettingRange positive{0, INFINITY, true}, unit{0, 1}, unit_open{0, 1, true};
+    const auto handled = [](O&, const std::string&) {};  // applied before the table (benerfOptions)
+    t.custom({"budget", "fast|balanced|quality|Ns|N", "fast, balanced, quality, seconds of wall time (60s) or iterations of fast (250)",
+              handled, [](const O&) {}, [](const O&) { return std::string("balanced"); }})
+        .custom({"preset", "synthetic|real", "the event term compared directly (synthetic) or normalised (real)", handled,
+                 [](const O&) {}, [](const O&) { return std::string("none"); }})
+        .choice("field", &O::field, {{"hash", Field::kHash}, {"mlp", Field::kMlp}}, "the fast hash-grid field or the paper's 8 x 256 MLP")
+        .integer("iterations", &O::iterations, {1}, "training steps")
+        .integer("views", &O::virtual_views, {0}, "virtual views of the blur term (0: from the measured blur length)")
+        .integer("knots", &O::knots, {2}, "trajectory knots")
+        .choice("trajectory", &O::trajectory,
+                {{"cubic", TrajectoryKind::kCubicSE3}, {"split", TrajectoryKind::kCubicSplit}, {"linear", TrajectoryKind::kLinear}},
+                "the trajectory's spline")
+        .choice("init", &O::init, {{"events", O::Init::kEvents}, {"identity", O::Init::kIdentity}},
+                "the knots' start: the rotation found from the events, or identity (the paper)")
+        .number("alpha", &O::alpha, unit_open, "event window, a fraction of the exposure")
+        .number("beta", &O::beta, {}, "weight of the event term (< 0: by the event term's form: 0.1 direct, 2 per 1,024 event pixels normalised)")
+        .choice("normalise", &O::event_form,
+                {{"auto", O::EventForm::kAuto}, {"1", O::EventForm::kNormalised}, {"0", O::EventForm::kDirect}},
+                "compare L2-normalised events and log changes (1), or directly with known thresholds (0)")
+        .custom({"contrast", "C[,C_off]", "the thresholds of the event term (over contrast.txt)",
+                 [](O& o, const std::string& v) { o.contrast = contrastSetting("benerf", v); },
+                 [](const O& o) {
+                   if (o.contrast && !(o.contrast->first > 0 && o.contrast->second > 0)) throw Error("benerf: contrast must be positive");
+                 },
+                 [](const O& o) { return o.contrast ? shortNumber(o.contrast->first) + "," + shortNumber(o.contrast->second) : "none"; }})
+        .flag("estimate_contrast", &O::estimate_contrast, "without thresholds, take EDI's searched c when it lies inside its range")
+        .integer("windows", &O::windows, {1}, "event windows per step, the event pixels dealt among them")
+        .integer("prefit", &O::prefit, {0}, "steps fitting the field and knots to EDI's latent frames first")
+        .number("dim_frame", &O::dim_frame, unit, "mean brightness below which the blur term is weighed up")
+        .custom({"rays", "integer", "blur_rays and event_rays at once",
+                 [](O& o, const std::string& v) {
+                   const double n = settingNumber("benerf", "rays", v);
+                   if (n != std::floor(n) || n < 1 || n > 1e9) throw Error("benerf: setting rays=" + v + " must be an integer >= 1");
+                   o.blur_rays = o.event_rays = static_cast<int>(n);
+                 },
+                 [](const O&) {}, [](const O& o) { return std::to_string(o.blur_rays); }})
+        .integer("blur_rays", &O::blur_rays, {1}, "pixels of the blur term per step, split over the views")
+        .integer("event_rays", &O::event_rays, {0}, "pixels of the event term per step (two rays each)")
+        .integer("samples", &O::samples, {2}, "stratified samples per ray")
+        .custom({"levels", "integer", "hash-grid levels",
+                 [](O& o, const std::string& v) { o.hash.grid.levels = positiveInt("levels", v, 1, 32); }, [](const O&) {},
+                 [](const O& o) { return std::to_string(o.hash.grid.levels); }})
+        .custom({"features", "integer", "features per hash-grid level",
+                 [](O& o, const std::string& v) { o.hash.grid.features = positiveInt("features", v, 1, 64); }, [](const O&) {},
+                 [](const O& o) { return std::to_string(o.hash.grid.features); }})
+        .custom({"table", "integer", "log2 of the hash table's entries per level",
+                 [](O& o, const std::string& v) { o.hash.grid.log2_table = positiveInt("table", v, 8, 24); }, [](const O&) {},
+                 [](const O& o) { return std::to_string(o.hash.grid.log2_table); }})
+        .integer("resolution", &O::finest_resolution, {0}, "the finest grid level's cells (0: the image's larger side)")
+        .number("depth_scale", &O::depth_scale, {0, 1, true}, "the field sees NDC depth times this")
+        .number("coarse_to_fine", &O::coarse_to_fine, unit, "fraction of the steps over which the field's bands open")
+        .number("field_lr", &O::field_lr, positive, "the field's learning rate (the MLP's default: 5e-4)")
+        .number("knot_lr", &O::knot_lr, positive, "the knots' learning rate")
+        .number("lr_final", &O::lr_final, positive, "the fraction both learning rates decay to")
+        .integer("seed", &O::seed, {0}, "random seed")
+        .integer("threads", &O::threads, {0}, "OpenMP threads (0: OpenMP's default)")
+        .custom({"checkpoint", "path", "write a checkpoint here every checkpoint_every steps and at the end",
+                 [](O& o, const std::string& v) { o.checkpoint = v; }, [](const O&) {},
+                 [](const O& o) { return o.checkpoint.empty() ? std::string("none") : o.checkpoint; }})
+        .integer("checkpoint_every", &O::checkpoint_every, {1}, "steps between checkpoints")
+        .custom({"resume", "path", "continue from this checkpoint (the same observation and settings)",
+                 [](O& o, const std::string& v) { o.resume = v; }, [](const O&) {},
+                 [](const O& o) { return o.resume.empty() ? std::string("none") : o.resume; }})
+        .integer("stop_after", &O::stop_after, {0}, "stop (after checkpointing) at this step; 0: never")
+        .custom({"lin_log", "0|1", "the log mapping's linear segment near black (as the simulator's)",
+                 [](O& o, const std::string& v) { o.log.lin_log = settingNumber("benerf", "lin_log", v) != 0; }, [](const O&) {},
+                 [](const O& o) { return std::string(o.log.lin_log ? "1" : "0"); }});
+    return t;
+  }();
+  return table;
+}
+
+void BenerfOptions::check() const { benerfSettings().check(*this); }
+
+BenerfOptions benerfOptions(const MethodSettings& settings) {
+  // The budget first (it sets many keys), then the preset, then every other key over them.
+  BenerfOptions o = benerfBudget("balanced");
+  if (const auto b = settings.find("budget"); b != settings.end()) o = parseBenerfBudget(b->second).options;
   if (const auto p = settings.find("preset"); p != settings.end()) {
     if (p->second == "synthetic") {
       o.event_form = BenerfOptions::EventForm::kDirect;
@@ -70,100 +161,18 @@ std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
       throw Error("benerf: unknown preset '" + p->second + "' (known: synthetic, real)");
     }
   }
-  for (const auto& [key, value] : settings) {
-    if (key == "budget" || key == "preset") continue;
-    if (key == "field") {
-      if (value != "hash" && value != "mlp") throw Error("benerf: field must be hash or mlp, not '" + value + "'");
-      o.field = value;
-    } else if (key == "iterations") {
-      o.iterations = settingInt(key, value, 1);
-    } else if (key == "views") {
-      o.virtual_views = settingInt(key, value, 1);
-    } else if (key == "knots") {
-      o.knots = settingInt(key, value, 2);
-    } else if (key == "trajectory") {
-      try {
-        o.trajectory = parseTrajectoryKind(value);
-      } catch (const Error&) {
-        throw Error("benerf: trajectory must be cubic, split or linear, not '" + value + "'");
-      }
-    } else if (key == "alpha") {
-      o.alpha = number(key, value);
-      if (!(o.alpha > 0 && o.alpha <= 1)) throw Error("benerf: alpha must lie in (0, 1]");
-    } else if (key == "beta") {
-      o.beta = number(key, value);
-      if (!(o.beta >= 0)) throw Error("benerf: beta must be >= 0");
-    } else if (key == "normalise") {
-      o.event_form = number(key, value) != 0 ? BenerfOptions::EventForm::kNormalised : BenerfOptions::EventForm::kDirect;
-    } else if (key == "windows") {
-      o.windows = settingInt(key, value, 1);
-    } else if (key == "rays") {
-      o.blur_rays = o.event_rays = settingInt(key, value, 1);
-    } else if (key == "blur_rays") {
-      o.blur_rays = settingInt(key, value, 1);
-    } else if (key == "event_rays") {
-      o.event_rays = settingInt(key, value, 0);
-    } else if (key == "samples") {
-      o.samples = settingInt(key, value, 2);
-    } else if (key == "contrast") {
-      o.contrast = contrastSetting("benerf", value);
-    } else if (key == "estimate_contrast") {
-      o.estimate_contrast = number(key, value) != 0;
-    } else if (key == "levels") {
-      o.hash.grid.levels = settingInt(key, value, 1);
-    } else if (key == "features") {
-      o.hash.grid.features = settingInt(key, value, 1);
-    } else if (key == "table") {
-      o.hash.grid.log2_table = settingInt(key, value, 8);
-      if (o.hash.grid.log2_table > 24) throw Error("benerf: table (log2 entries) must be at most 24");
-    } else if (key == "depth_scale") {
-      o.depth_scale = number(key, value);
-      if (!(o.depth_scale > 0 && o.depth_scale <= 1)) throw Error("benerf: depth_scale must lie in (0, 1]");
-    } else if (key == "resolution") {
-      o.finest_resolution = settingInt(key, value, 2);
-    } else if (key == "dim_frame") {
-      o.dim_frame = number(key, value);
-      if (!(o.dim_frame >= 0 && o.dim_frame <= 1)) throw Error("benerf: dim_frame must lie in [0, 1] (a mean linear brightness)");
-    } else if (key == "prefit") {
-      o.prefit = settingInt(key, value, 0);
-    } else if (key == "coarse_to_fine") {
-      o.coarse_to_fine = number(key, value);
-      if (!(o.coarse_to_fine >= 0 && o.coarse_to_fine <= 1)) throw Error("benerf: coarse_to_fine must lie in [0, 1] (the fraction of the iterations over which the field's bands open)");
-    } else if (key == "init") {
-      if (value == "events") {
-        o.init = BenerfOptions::Init::kEvents;
-      } else if (value == "identity") {
-        o.init = BenerfOptions::Init::kIdentity;
-      } else {
-        throw Error("benerf: init must be events or identity, not '" + value + "'");
-      }
-    } else if (key == "field_lr") {
-      o.field_lr = number(key, value);
-    } else if (key == "knot_lr") {
-      o.knot_lr = number(key, value);
-    } else if (key == "lr_final") {
-      o.lr_final = number(key, value);
-      if (!(o.lr_final > 0)) throw Error("benerf: setting lr_final=" + value + " must be positive (the fraction the learning rates decay to)");
-    } else if (key == "seed") {
-      o.seed = static_cast<uint64_t>(settingInt(key, value, 0));
-    } else if (key == "threads") {
-      o.threads = settingInt(key, value, 1);
-    } else if (key == "checkpoint") {
-      o.checkpoint = value;
-    } else if (key == "resume") {
-      o.resume = value;
-    } else if (key == "stop_after") {
-      o.stop_after = settingInt(key, value, 1);
-    } else if (key == "lin_log") {
-      o.log.lin_log = number(key, value) != 0;
-    } else {
-      throw Error("benerf: unknown setting '" + key +
-                  "' (known: budget, preset, field, iterations, views, knots, trajectory, init, alpha, beta, normalise, contrast, estimate_contrast, windows, prefit, dim_frame, rays, blur_rays, event_rays, samples, levels, "
-                  "features, table, resolution, depth_scale, coarse_to_fine, field_lr, knot_lr, lr_final, seed, threads, checkpoint, resume, stop_after, lin_log)");
-    }
-  }
-  if (o.field == "mlp" && !settings.count("field_lr")) o.field_lr = 5e-4;  // the paper's rate for its MLP
-  return std::make_unique<BenerfDeblurrer>(o);
+  MethodSettings rest = settings;
+  rest.erase("budget");
+  rest.erase("preset");
+  if (rest.count("budget_seconds") != 0) throw Error("benerf: unknown setting 'budget_seconds' (say budget=60s)");
+  benerfSettings().apply(o, rest);
+  if (o.field == BenerfOptions::FieldKind::kMlp && !settings.count("field_lr")) o.field_lr = 5e-4;  // the paper's rate for its MLP
+  o.check();
+  return o;
+}
+
+std::unique_ptr<Deblurrer> makeBenerf(const MethodSettings& settings) {
+  return std::make_unique<BenerfDeblurrer>(benerfOptions(settings));
 }
 
 }  // namespace evkit

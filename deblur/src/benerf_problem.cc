@@ -54,13 +54,11 @@ BenerfProblem<T>::BenerfProblem(const Observation& obs, const BenerfOptions& opt
       rays_(camera_, rays_options_) {
   if (channels_ != 1 && channels_ != 3) throw Error("benerf: the blurry frame must be grey or colour, not " + std::to_string(channels_) + " channels");
   if (views_ < 1) throw Error("benerf: need at least one virtual view");
-  if (options.field == "hash") {
+  if (options.field == BenerfOptions::FieldKind::kHash) {
     const int finest = options.finest_resolution > 0 ? options.finest_resolution : std::max(camera_.width, camera_.height);
     field_ = nerf::makeHashField<T>(adaptedHash(options.hash, finest), channels_, options.seed);
-  } else if (options.field == "mlp") {
-    field_ = nerf::makeMlpField<T>(options.mlp, channels_, options.seed);
   } else {
-    throw Error("benerf: unknown field '" + options.field + "' (known: hash, mlp)");
+    field_ = nerf::makeMlpField<T>(options.mlp, channels_, options.seed);
   }
   if (const auto& thresholds = options.contrast ? options.contrast : obs.contrast) {
     c_on_ = thresholds->first;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <tuple>
 
 #include <opencv2/imgproc.hpp>
 
@@ -195,5 +196,42 @@ DeblurResult EdiDeblurrer::run(const Observation& obs, const DeblurRequest& requ
   result.parameters["events"] = static_cast<double>(obs.events.sliceTime(t0, t1 + 1).size());
   return result;
 }
+
+const SettingsTable<EdiOptions>& ediSettings() {
+  using O = EdiOptions;
+  static const SettingsTable<O> table = [] {
+    SettingsTable<O> t("edi");
+    t.custom({"contrast", "C[,C_off]", "fixed thresholds (over contrast.txt and the search)",
+              [](O& o, const std::string& v) { std::tie(o.contrast_on, o.contrast_off) = contrastSetting("edi", v); },
+              [](const O& o) {
+                if ((o.contrast_on && !(*o.contrast_on > 0)) || (o.contrast_off && !(*o.contrast_off > 0))) {
+                  throw Error("edi: contrast must be positive");
+                }
+              },
+              [](const O& o) { return o.contrast_on ? shortNumber(*o.contrast_on) + "," + shortNumber(o.contrast_off.value_or(*o.contrast_on)) : "none"; }})
+        .custom({"search", "0|1", "1: search c even when contrast.txt gives the thresholds",
+                 [](O& o, const std::string& v) { o.use_observation_contrast = settingNumber("edi", "search", v) == 0; },
+                 [](const O&) {}, [](const O& o) { return std::string(o.use_observation_contrast ? "0" : "1"); }})
+        .number("c_min", &O::search_min, {0, INFINITY, true}, "lowest c of the search")
+        .number("c_max", &O::search_max, {0, INFINITY, true}, "highest c of the search")
+        .integer("margin_us", &O::margin_us, {0}, "widen the integration window on both sides (µs)");
+    return t;
+  }();
+  return table;
+}
+
+void EdiOptions::check() const {
+  ediSettings().check(*this);
+  if (!(search_max > search_min)) throw Error("edi: need c_min < c_max");
+}
+
+EdiOptions ediOptions(const MethodSettings& settings) {
+  EdiOptions o;
+  ediSettings().apply(o, settings);
+  o.check();
+  return o;
+}
+
+std::unique_ptr<Deblurrer> makeEdi(const MethodSettings& settings) { return std::make_unique<EdiDeblurrer>(ediOptions(settings)); }
 
 }  // namespace evkit

@@ -291,8 +291,8 @@ TEST(Cli, DeblurWithBenerfWritesFramesTrajectoryDisparityCurveAndCheckpoint) {
     EXPECT_NE(u.err.find(message), std::string::npos) << u.err;
   };
   expectUsageError("windows=0", "windows=0 must be an integer >= 1");
-  expectUsageError("coarse_to_fine=1.5", "coarse_to_fine must lie in [0, 1]");
-  expectUsageError("dim_frame=2", "dim_frame must lie in [0, 1]");
+  expectUsageError("coarse_to_fine=1.5", "coarse_to_fine=1.5 must be in [0, 1]");
+  expectUsageError("dim_frame=2", "dim_frame=2 must be in [0, 1]");
   expectUsageError("prefit=-5", "prefit=-5");
   std::ofstream(dir / "bad.ckpt") << "EVKBNRF1 not really";
   r = runEvkit("deblur " + (dir / "obs") + " --method benerf --set resume=" + (dir / "bad.ckpt") + " --out " + (dir / "x"), dir);

@@ -33,6 +33,7 @@
 #include <opencv2/core.hpp>
 
 #include "evkit/deblur/deblurrer.h"
+#include "evkit/deblur/settings.h"
 #include "evkit/events/log_intensity.h"
 #include "evkit/nerf/camera.h"
 #include "evkit/nerf/field.h"
@@ -41,9 +42,12 @@
 
 namespace evkit {
 
+// The defaults are the `balanced` budget's (benerfBudget); every setting, its range and its help
+// are declared once in benerfSettings() (benerf_options.cc).
 struct BenerfOptions {
-  // Field: "hash" (the fast field) or "mlp" (the paper's 8 x 256 MLP, the reference).
-  std::string field = "hash";
+  // Field: the fast hash-grid field, or the paper's 8 x 256 MLP (the reference).
+  enum class FieldKind { kHash, kMlp };
+  FieldKind field = FieldKind::kHash;
   nerf::HashFieldConfig hash;  // levels, features, table; finest resolution adapted to the image when 0
   int finest_resolution = 0;   // 0: the image's larger side
   // The field sees NDC (x, y, depth_scale * z): below 1 the grid's levels have fewer cells along
@@ -98,9 +102,9 @@ struct BenerfOptions {
   // anchor, 42.9 dB, below the blurry input (48.2); with it 62.7.
   double dim_frame = 0.1;
   int iterations = 2000;
-  int blur_rays = 1024;   // split over the n views: blur_rays / n pixels per step
-  int event_rays = 1024;  // pixels of the event term per step (2 rays each)
-  int samples = 32;       // stratified samples per ray
+  int blur_rays = 2048;   // split over the n views: blur_rays / n pixels per step
+  int event_rays = 2048;  // pixels of the event term per step (2 rays each)
+  int samples = 8;        // stratified samples per ray
   double near = 1.0;      // NDC near plane
   // Coarse to fine (BARF, Lin et al., ICCV 2021; not in BeNeRF): the field's encoding starts with
   // its two coarsest bands (hash levels; the MLP's raw position and first frequency) and opens the
@@ -123,10 +127,28 @@ struct BenerfOptions {
   int checkpoint_every = 500;
   int stop_after = 0;  // > 0: stop (after checkpointing) at this iteration; resume continues the same run
   int curve_every = 25;  // training-curve points
+
+  // Throws evkit::Error naming the first setting out of its range.
+  void check() const;
 };
 
 // The budgets: fast, balanced, quality (iterations, rays, samples, field size); throws for others.
 BenerfOptions benerfBudget(const std::string& name);
+
+// The one budget grammar of `--set budget=` and `evkit bench --budgets`: a named budget, "60s"
+// (seconds of wall time for the whole run, balanced's settings) or "250" (iterations of fast's
+// settings). Throws evkit::Error otherwise.
+struct BenerfBudget {
+  std::string label;  // "fast", "60 s", "250 it"
+  BenerfOptions options;
+};
+BenerfBudget parseBenerfBudget(const std::string& token);
+
+// Every `--set KEY=VALUE` of BeNeRF but budget and preset: key, type, range, help.
+const SettingsTable<BenerfOptions>& benerfSettings();
+// Options from settings: the budget (balanced without one), then the preset (synthetic: the event
+// term compared directly; real: normalised), then every other key; checked.
+BenerfOptions benerfOptions(const MethodSettings& settings);
 
 // The blur length in pixels measured from the events: with a contrast c, the events of a pixel
 // count the total variation of its log intensity over the exposure, which is about the path length

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "evkit/deblur/observation.h"
+#include "evkit/deblur/settings.h"
 
 namespace evkit {
 
@@ -31,13 +32,6 @@ struct DeblurResult {
   cv::Mat disparity;  // float32 at mid-exposure, where the method models depth (1 / depth, arbitrary scale)
 };
 
-// Key/value settings of a method, from the command line ("contrast=0.2"); each method documents
-// its keys and rejects unknown ones.
-using MethodSettings = std::map<std::string, std::string>;
-
-// A setting's value as a finite number; throws evkit::Error "<method>: setting KEY=VALUE is not a
-// number" otherwise.
-double settingNumber(const std::string& method, const std::string& key, const std::string& value);
 // A `contrast=C[,C_off]` setting as (C_on, C_off), both positive; throws evkit::Error otherwise.
 std::pair<double, double> contrastSetting(const std::string& method, const std::string& value);
 
@@ -48,7 +42,10 @@ class Deblurrer {
   virtual DeblurResult run(const Observation& obs, const DeblurRequest& request) = 0;
 };
 
+// The methods (deblur/src/methods.cc): blurry, edi, benerf.
 std::vector<std::string> deblurrerNames();
+// Each setting of a method with its type, default and help, one per line.
+std::string deblurrerHelp(const std::string& name);
 // Throws evkit::Error for an unknown name or setting.
 std::unique_ptr<Deblurrer> makeDeblurrer(const std::string& name, const MethodSettings& settings = {});
 

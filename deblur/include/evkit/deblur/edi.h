@@ -17,6 +17,7 @@
 #include <opencv2/core.hpp>
 
 #include "evkit/deblur/deblurrer.h"
+#include "evkit/deblur/settings.h"
 
 namespace evkit {
 
@@ -27,7 +28,17 @@ struct EdiOptions {
   int search_grid = 21;                       // coarse grid, then golden-section refinement
   double saturated = 0.99, black = 0.005;     // masks (linear intensity)
   int64_t margin_us = 0;                      // widen the integration window on both sides
+
+  // Throws evkit::Error naming the first setting out of its range.
+  void check() const;
 };
+
+// Every `--set KEY=VALUE` of EDI: key, type, range, help.
+const SettingsTable<EdiOptions>& ediSettings();
+// Options from settings, checked.
+EdiOptions ediOptions(const MethodSettings& settings);
+// Parses EDI's settings (ediSettings) and makes the method.
+std::unique_ptr<Deblurrer> makeEdi(const MethodSettings& settings);
 
 // Per-pixel level durations of one exposure, reusable across c values and latent times.
 class EdiModel {
