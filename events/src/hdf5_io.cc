@@ -57,6 +57,17 @@ H5Handle openDataset(hid_t file, const std::string& name, const std::string& pat
 
 class Hdf5Reader final : public EventReader {
  public:
+  // libhdf5 keeps freed blocks on free lists of its own, which grow in a process that opens many
+  // files; they go back to the system when the reader does.
+  ~Hdf5Reader() override {
+    for (H5Handle& column : columns_) column = H5Handle();
+    images_ = H5Handle();
+    file_ = H5Handle();
+    H5garbage_collect();
+  }
+  Hdf5Reader(const Hdf5Reader&) = delete;
+  Hdf5Reader& operator=(const Hdf5Reader&) = delete;
+
   explicit Hdf5Reader(std::string path) : path_(std::move(path)), precheck_(path_) {
     silenceHdf5Errors();
     useCheckedFilters();
@@ -250,6 +261,16 @@ class Hdf5Reader final : public EventReader {
     } else if (attributeExists(ds.get(), "t_offset")) {
       t_offset_ = readIntAttribute(ds.get(), "t_offset", path_);
     } else {
+      return;
+    }
+    // One entry per millisecond up to about the last event: an index that claims more (a damaged
+    // dataspace) is not read, and the reader falls back to binary search on t.
+    if (count_ == 0) return;
+    int64_t last_t = 0;
+    readTimes(count_ - 1, 1, &last_t);
+    const int64_t span_ms = last_t >= t_offset_ ? (last_t - t_offset_) / 1000 : -1;
+    if (span_ms < 0 || shape[0] > static_cast<hsize_t>(span_ms) + 1000) {  // a second of slack
+      info_.warnings.push_back(path_ + ": " + name + " does not match the events' times; ignored");
       return;
     }
     ms_to_idx_.resize(shape[0]);
