@@ -77,40 +77,28 @@ BenerfProblem<T>::BenerfProblem(const Observation& obs, const BenerfOptions& opt
   double brightness = 0;
   for (int c = 0; c < channels_; ++c) brightness += mean[c] / channels_;
   blur_weight_ = brightness < options.dim_frame ? std::pow(options.dim_frame / std::max(brightness, 1e-3), 2) : 1.0;
-  // Events of the exposure grouped by pixel (a counting sort keeps each pixel's time order).
-  const EventSpan ev = obs.events.sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us + 1);
-  const int W = camera_.width, H = camera_.height;
-  event_first_.assign(static_cast<size_t>(W) * H + 1, 0);
-  size_t kept = 0;
-  for (size_t i = 0; i < ev.size(); ++i) {
-    if (ev.x[i] < W && ev.y[i] < H) {
-      ++event_first_[static_cast<size_t>(ev.y[i]) * W + ev.x[i] + 1];
-      ++kept;
+  // Events of the exposure by pixel, with the accumulated level after each.
+  events_ = PixelEventIndex(obs.events.sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us + 1), camera_.width,
+                            camera_.height);
+  event_level_.resize(events_.size());
+  for (size_t p = 0; p < static_cast<size_t>(camera_.width) * camera_.height; ++p) {
+    double level = 0;
+    for (uint32_t e = events_.begin(p); e < events_.end(p); ++e) {
+      level += events_.polarity()[e] > 0 ? (known_contrast_ ? c_on_ : 1.0) : -(known_contrast_ ? c_off_ : 1.0);
+      event_level_[e] = level;
     }
-  }
-  for (size_t p = 1; p < event_first_.size(); ++p) event_first_[p] += event_first_[p - 1];
-  event_t_.resize(kept);
-  event_level_.resize(kept);
-  std::vector<uint32_t> fill(event_first_.begin(), event_first_.end() - 1);
-  std::vector<double> level(static_cast<size_t>(W) * H, 0.0);
-  for (size_t i = 0; i < ev.size(); ++i) {
-    if (ev.x[i] >= W || ev.y[i] >= H) continue;
-    const size_t p = static_cast<size_t>(ev.y[i]) * W + ev.x[i];
-    level[p] += ev.p[i] > 0 ? (known_contrast_ ? c_on_ : 1.0) : -(known_contrast_ ? c_off_ : 1.0);
-    event_t_[fill[p]] = ev.t[i];
-    event_level_[fill[p]] = level[p];
-    ++fill[p];
   }
 }
 
 template <typename T>
 double BenerfProblem<T>::accumulatedEvents(int pixel, int64_t t_begin, int64_t t_end) const {
-  const auto first = event_t_.begin() + event_first_[static_cast<size_t>(pixel)];
-  const auto last = event_t_.begin() + event_first_[static_cast<size_t>(pixel) + 1];
+  const std::vector<int64_t>& times = events_.t();
+  const auto first = times.begin() + events_.begin(static_cast<size_t>(pixel));
+  const auto last = times.begin() + events_.end(static_cast<size_t>(pixel));
   // The level after the last event before t (0 before the first).
   const auto levelAt = [&](int64_t t) {
     const auto it = std::lower_bound(first, last, t);
-    return it == first ? 0.0 : event_level_[static_cast<size_t>(it - event_t_.begin()) - 1];
+    return it == first ? 0.0 : event_level_[static_cast<size_t>(it - times.begin()) - 1];
   };
   return levelAt(t_end) - levelAt(t_begin);
 }

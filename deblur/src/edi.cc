@@ -33,37 +33,24 @@ cv::Mat gradientMagnitude(const cv::Mat& img) {
 EdiModel::EdiModel(const EventSpan& all, int width, int height, int64_t t_begin_us, int64_t t_end_us)
     : width_(width), height_(height), t_begin_(t_begin_us), t_end_(t_end_us) {
   if (t_end_us <= t_begin_us) throw Error("EDI: the exposure must have a positive duration");
-  const EventSpan events = all.sliceTime(t_begin_us, t_end_us + 1);
+  events_ = PixelEventIndex(all.sliceTime(t_begin_us, t_end_us + 1), width, height);
   const size_t pixels = static_cast<size_t>(width) * static_cast<size_t>(height);
-  // Group the events by pixel (a counting sort keeps their time order).
-  ev_first_.assign(pixels + 1, 0);
-  for (size_t e = 0; e < events.size(); ++e) {
-    if (events.x[e] < width && events.y[e] < height) ++ev_first_[static_cast<size_t>(events.y[e]) * width + events.x[e] + 1];
-  }
-  for (size_t p = 0; p < pixels; ++p) ev_first_[p + 1] += ev_first_[p];
-  ev_t_.resize(ev_first_[pixels]);
-  ev_p_.resize(ev_first_[pixels]);
-  std::vector<uint32_t> fill(ev_first_.begin(), ev_first_.end() - 1);
-  for (size_t e = 0; e < events.size(); ++e) {
-    if (events.x[e] >= width || events.y[e] >= height) continue;
-    const size_t p = static_cast<size_t>(events.y[e]) * width + events.x[e];
-    ev_t_[fill[p]] = events.t[e];
-    ev_p_[fill[p]++] = events.p[e];
-  }
+  const std::vector<int64_t>& ev_t = events_.t();
+  const std::vector<int8_t>& ev_p = events_.polarity();
   // Segments: the time each pixel spends at each (on, off) level inside the window.
   seg_first_.resize(pixels + 1);
-  segments_.reserve(ev_t_.size() + pixels);
+  segments_.reserve(events_.size() + pixels);
   for (size_t p = 0; p < pixels; ++p) {
     seg_first_[p] = static_cast<uint32_t>(segments_.size());
     int32_t on = 0, off = 0;
     int64_t prev = t_begin_;
-    for (uint32_t e = ev_first_[p]; e < ev_first_[p + 1]; ++e) {
-      if (ev_t_[e] > prev) segments_.push_back({on, off, static_cast<double>(ev_t_[e] - prev)});
-      prev = std::max(prev, ev_t_[e]);
-      (ev_p_[e] > 0 ? on : off) += 1;
+    for (uint32_t e = events_.begin(p); e < events_.end(p); ++e) {
+      if (ev_t[e] > prev) segments_.push_back({on, off, static_cast<double>(ev_t[e] - prev)});
+      prev = std::max(prev, ev_t[e]);
+      (ev_p[e] > 0 ? on : off) += 1;
     }
     if (t_end_ > prev) segments_.push_back({on, off, static_cast<double>(t_end_ - prev)});
-    max_events_per_pixel_ = std::max(max_events_per_pixel_, static_cast<int>(ev_first_[p + 1] - ev_first_[p]));
+    max_events_per_pixel_ = std::max(max_events_per_pixel_, static_cast<int>(events_.count(p)));
   }
   seg_first_[pixels] = static_cast<uint32_t>(segments_.size());
 }
@@ -92,10 +79,12 @@ cv::Mat EdiModel::latent(const cv::Mat& blurry, int64_t t_us, double c_on, doubl
       double gain = 1.0;
       bool masked = g[x] <= options.black;
       for (int c = 0; c < channels; ++c) masked |= b[x * channels + c] >= options.saturated;
-      if (!masked && ev_first_[p + 1] > ev_first_[p]) {
+      if (!masked && events_.count(p) > 0) {
         // Level at t: the events of this pixel up to t.
         int32_t on_f = 0, off_f = 0;
-        for (uint32_t e = ev_first_[p]; e < ev_first_[p + 1] && ev_t_[e] <= t_us; ++e) (ev_p_[e] > 0 ? on_f : off_f) += 1;
+        for (uint32_t e = events_.begin(p); e < events_.end(p) && events_.t()[e] <= t_us; ++e) {
+          (events_.polarity()[e] > 0 ? on_f : off_f) += 1;
+        }
         double integral = 0.0;  // (1/T) integral exp(c E(t) - c E(f)) dt
         for (uint32_t s = seg_first_[p]; s < seg_first_[p + 1]; ++s) {
           const Segment& seg = segments_[s];

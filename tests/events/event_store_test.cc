@@ -1,4 +1,5 @@
 #include "evkit/events/event_store.h"
+#include "evkit/events/pixel_index.h"
 
 #include <gtest/gtest.h>
 
@@ -97,6 +98,33 @@ TEST(RandomEvents, DeterministicSortedAndInsideTheSensor) {
   EXPECT_NO_THROW(validate(a.view(), "random"));
   o.seed = 2;
   EXPECT_NE(randomEvents(o).x, a.x);
+}
+
+}  // namespace
+}  // namespace evkit
+
+namespace evkit {
+namespace {
+
+TEST(PixelEventIndex, GroupsByPixelInTimeOrderAndDropsOutsiders) {
+  EventStore ev(SensorSize{3, 2});
+  // (t, x, y, p): pixel 1 = (1, 0) gets three events, pixel 5 = (2, 1) one; (3, 0) is outside.
+  const int64_t t[] = {10, 11, 12, 13, 14, 15};
+  const uint16_t x[] = {1, 2, 1, 3, 1, 0};
+  const uint16_t y[] = {0, 1, 0, 0, 0, 2};
+  const int8_t p[] = {1, -1, -1, 1, 1, 1};
+  for (int i = 0; i < 6; ++i) ev.push_back(t[i], x[i], y[i], p[i]);
+  const PixelEventIndex index(ev.view(), 3, 2);
+  EXPECT_EQ(index.size(), 4u);
+  EXPECT_EQ(index.count(0), 0u);
+  ASSERT_EQ(index.count(1), 3u);
+  EXPECT_EQ(index.t()[index.begin(1)], 10);
+  EXPECT_EQ(index.t()[index.begin(1) + 1], 12);
+  EXPECT_EQ(index.polarity()[index.begin(1) + 1], -1);
+  EXPECT_EQ(index.t()[index.end(1) - 1], 14);
+  ASSERT_EQ(index.count(5), 1u);
+  EXPECT_EQ(index.t()[index.begin(5)], 11);
+  EXPECT_EQ(index.end(5), index.size());
 }
 
 }  // namespace

@@ -35,6 +35,7 @@
 #include "evkit/deblur/deblurrer.h"
 #include "evkit/deblur/settings.h"
 #include "evkit/events/log_intensity.h"
+#include "evkit/events/pixel_index.h"
 #include "evkit/nerf/camera.h"
 #include "evkit/nerf/field.h"
 #include "evkit/nerf/ray_batch.h"
@@ -211,7 +212,7 @@ class BenerfProblem {
   const nerf::PinholeCamera& camera() const { return camera_; }
   int virtualViews() const { return views_; }
   double viewTime(int k) const { return (k + 0.5) / views_; }  // view k's normalised time in the exposure
-  int64_t eventsInExposure() const { return static_cast<int64_t>(event_t_.size()); }
+  int64_t eventsInExposure() const { return static_cast<int64_t>(events_.size()); }
   bool normalisedEvents() const { return normalised_; }
   double beta() const { return beta_; }
   double blurWeight() const { return blur_weight_; }
@@ -238,11 +239,8 @@ class BenerfProblem {
   bool normalised_ = true;  // the event term's form
   double beta_ = 1;
   double blur_weight_ = 1;  // the blur term's weight: 1, more for a dim frame
-  // Events of the exposure by pixel: event_first_[p] .. event_first_[p + 1] into event_t_ and
-  // event_level_ (the accumulated polarity after the event).
-  std::vector<uint32_t> event_first_;
-  std::vector<int64_t> event_t_;
-  std::vector<double> event_level_;
+  PixelEventIndex events_;          // the exposure's events by pixel
+  std::vector<double> event_level_;  // per event of events_: the accumulated polarity after it
 };
 
 class BenerfDeblurrer final : public Deblurrer {

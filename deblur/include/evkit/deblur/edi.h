@@ -17,6 +17,7 @@
 #include <opencv2/core.hpp>
 
 #include "evkit/deblur/deblurrer.h"
+#include "evkit/events/pixel_index.h"
 #include "evkit/deblur/settings.h"
 
 namespace evkit {
@@ -64,9 +65,7 @@ class EdiModel {
   int64_t t_begin_, t_end_;
   std::vector<uint32_t> seg_first_;  // pixel p: segments_[seg_first_[p] .. seg_first_[p+1])
   std::vector<Segment> segments_;
-  std::vector<uint32_t> ev_first_;  // pixel p: ev_t_/ev_p_[ev_first_[p] .. ev_first_[p+1]), sorted
-  std::vector<int64_t> ev_t_;
-  std::vector<int8_t> ev_p_;
+  PixelEventIndex events_;  // the exposure's events by pixel
   int max_events_per_pixel_ = 0;
 };
 
