@@ -69,7 +69,7 @@ void BM_HashField(benchmark::State& state) {
 }
 
 void trainingSteps(benchmark::State& state, RadianceField<float>& field, int rays) {
-  PinholeCamera cam{64, 48, 58.0, 58.0, 31.5, 23.5, {}};
+  const PinholeCamera cam = PinholeCamera{58.0, 58.0, 31.5, 23.5, {}}.withSize(64, 48);
   std::vector<TrainingView> views = {{cv::Mat(48, 64, CV_32FC3, cv::Scalar(0.3, 0.5, 0.7)), SE3()}};
   FitOptions o;
   o.steps = 1;

@@ -5,8 +5,6 @@
 
 #include <opencv2/core.hpp>
 
-#include "evkit/events/calibration.h"
-#include "evkit/nerf/camera.h"
 
 namespace evkit::benerf_detail {
 
@@ -18,18 +16,6 @@ inline cv::Mat toFloat(const cv::Mat& image) {
   cv::Mat f;
   image.convertTo(f, CV_32F);
   return f;
-}
-
-inline nerf::PinholeCamera pinhole(const Calibration& c, int width, int height) {
-  nerf::PinholeCamera camera;
-  camera.width = width;
-  camera.height = height;
-  camera.fx = c.fx;
-  camera.fy = c.fy;
-  camera.cx = c.cx;
-  camera.cy = c.cy;
-  camera.distortion = c.distortion;
-  return camera;
 }
 
 }  // namespace evkit::benerf_detail

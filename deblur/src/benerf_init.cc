@@ -70,7 +70,7 @@ class WarpedEventImage {
     const size_t stride = std::max<size_t>(1, ev.size() / std::max<size_t>(1, max_events));
     for (size_t i = 0; i < ev.size(); i += stride) {
       if (ev.x[i] >= camera.width || ev.y[i] >= camera.height) continue;
-      bearings_.push_back(camera.direction(ev.x[i], ev.y[i]));
+      bearings_.push_back(nerf::pixelDirection(camera, ev.x[i], ev.y[i]));
       tau_.push_back((static_cast<double>(ev.t[i]) - t_mid) / length);
     }
   }

@@ -13,7 +13,6 @@
 
 namespace evkit {
 
-using benerf_detail::pinhole;
 using benerf_detail::secondsSince;
 using benerf_detail::toFloat;
 
@@ -44,7 +43,7 @@ nerf::HashFieldConfig adaptedHash(nerf::HashFieldConfig c, int finest) {
 template <typename T>
 BenerfProblem<T>::BenerfProblem(const Observation& obs, const BenerfOptions& options, int virtual_views)
     : options_(options),
-      camera_(pinhole(obs.camera, obs.blurry.image.cols, obs.blurry.image.rows)),
+      camera_(obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows)),
       channels_(obs.blurry.image.channels()),
       views_(virtual_views),
       blurry_(toFloat(obs.blurry.image)),

@@ -15,26 +15,27 @@ Eigen::Vector2d distort(const std::vector<double>& k, double x, double y) {
 }
 }  // namespace
 
-Vector3 PinholeCamera::direction(double u, double v) const {
-  const double xd = (u - cx) / fx, yd = (v - cy) / fy;
-  if (distortion.empty()) return Vector3(xd, yd, 1.0);
+Vector3 pixelDirection(const PinholeCamera& camera, double u, double v) {
+  const double xd = (u - camera.cx) / camera.fx, yd = (v - camera.cy) / camera.fy;
+  if (camera.distortion.empty()) return Vector3(xd, yd, 1.0);
   // Fixed point: x = xd - (distort(x) - x).
   double x = xd, y = yd;
   for (int it = 0; it < 20; ++it) {
-    const Eigen::Vector2d d = distort(distortion, x, y);
+    const Eigen::Vector2d d = distort(camera.distortion, x, y);
     x = xd - (d.x() - x);
     y = yd - (d.y() - y);
   }
   return Vector3(x, y, 1.0);
 }
 
-Eigen::Vector2d PinholeCamera::project(const Vector3& p) const {
-  const Eigen::Vector2d n = distortion.empty() ? Eigen::Vector2d(p.x() / p.z(), p.y() / p.z()) : distort(distortion, p.x() / p.z(), p.y() / p.z());
-  return {fx * n.x() + cx, fy * n.y() + cy};
+Eigen::Vector2d projectPoint(const PinholeCamera& camera, const Vector3& p) {
+  const Eigen::Vector2d n = camera.distortion.empty() ? Eigen::Vector2d(p.x() / p.z(), p.y() / p.z())
+                                                      : distort(camera.distortion, p.x() / p.z(), p.y() / p.z());
+  return {camera.fx * n.x() + camera.cx, camera.fy * n.y() + camera.cy};
 }
 
 Ray worldRay(const PinholeCamera& camera, const SE3& T, double u, double v) {
-  return Ray{T.translation(), T.rotation() * camera.direction(u, v)};
+  return Ray{T.translation(), T.rotation() * pixelDirection(camera, u, v)};
 }
 
 NdcRay toNdc(const Ray& ray, const PinholeCamera& camera, double near) {
@@ -50,7 +51,7 @@ NdcRay toNdc(const Ray& ray, const PinholeCamera& camera, double near) {
 }
 
 Eigen::Matrix<double, 3, 6> ndcPointPoseJacobian(const PinholeCamera& camera, const SE3& T, double u, double v, double t, double n) {
-  const Vector3 d_cam = camera.direction(u, v);
+  const Vector3 d_cam = pixelDirection(camera, u, v);
   const Matrix3 R = T.rotationMatrix();
   const Vector3 o = T.translation(), d = R * d_cam;
   const double ax = 2 * camera.fx / camera.width, ay = 2 * camera.fy / camera.height;

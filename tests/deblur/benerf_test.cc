@@ -278,7 +278,7 @@ TEST(Benerf, MiddleFrameBeatsTheBlurryInputAndTheRotationIsRecovered) {
 TEST(Benerf, RotationFromEventsFollowsTheTrueMotion) {
   for (const uint64_t seed : {1, 2, 3}) {
     const Observation obs = makeObservation(96, 72, 12, seed, "planes", 1.0);
-    const nerf::PinholeCamera camera{96, 72, obs.camera.fx, obs.camera.fy, obs.camera.cx, obs.camera.cy, obs.camera.distortion};
+    const nerf::PinholeCamera camera = obs.camera.withSize(96, 72);
     const Vector3 estimate = rotationFromEvents(obs, camera, measureBlurLength(obs)), truth = exposureRotation(obs.gt_poses);
     const double angle = std::acos(std::clamp(estimate.normalized().dot(truth.normalized()), -1.0, 1.0)) * 180 / M_PI;
     EXPECT_NEAR(estimate.norm(), truth.norm(), 0.6 * truth.norm()) << "estimate " << estimate.transpose() << ", truth " << truth.transpose();
@@ -286,7 +286,7 @@ TEST(Benerf, RotationFromEventsFollowsTheTrueMotion) {
   }
   Observation quiet = makeObservation(48, 36, 6, 1);
   quiet.events = EventStore(SensorSize{48, 36});
-  const nerf::PinholeCamera camera{48, 36, quiet.camera.fx, quiet.camera.fy, quiet.camera.cx, quiet.camera.cy, quiet.camera.distortion};
+  const nerf::PinholeCamera camera = quiet.camera.withSize(48, 36);
   EXPECT_EQ(rotationFromEvents(quiet, camera, 6).norm(), 0.0);
 }
 

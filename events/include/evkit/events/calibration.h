@@ -1,16 +1,15 @@
-// Pinhole intrinsics as calibration files store them (RPG calib.txt, the observation folder's
-// calib.txt): fx fy cx cy [k1 k2 p1 p2 [k3]] (radial-tangential distortion, OpenCV's order).
+// Calibration files (RPG calib.txt, the observation folder's calib.txt): one line
+// fx fy cx cy [k1 k2 p1 p2 [k3]] (radial-tangential distortion, OpenCV's order), read into the
+// shared camera type (its size left unknown).
 #pragma once
 
 #include <string>
-#include <vector>
+
+#include "evkit/base/camera.h"
 
 namespace evkit {
 
-struct Calibration {
-  double fx = 0, fy = 0, cx = 0, cy = 0;
-  std::vector<double> distortion;  // empty, or k1 k2 p1 p2 [k3]
-};
+using Calibration = PinholeCamera;
 
 // Reads one line "fx fy cx cy [k1 k2 p1 p2 [k3]]"; throws evkit::Error naming the file and line.
 Calibration readCalibration(const std::string& path);

@@ -12,21 +12,18 @@
 #include <Eigen/Core>
 #include <vector>
 
+#include "evkit/base/camera.h"
 #include "evkit/spline/lie.h"
 
 namespace evkit::nerf {
 
-struct PinholeCamera {
-  int width = 0, height = 0;
-  double fx = 0, fy = 0, cx = 0, cy = 0;
-  std::vector<double> distortion;  // k1 k2 p1 p2 [k3] (OpenCV's model), or empty
+using PinholeCamera = evkit::PinholeCamera;  // base/camera.h: the one camera type
 
-  // Camera-frame direction (z = 1) of pixel coordinates (u, v): undistorted by fixed-point
-  // iteration when there is distortion.
-  Vector3 direction(double u, double v) const;
-  // Pixel coordinates of a camera-frame point (distorted).
-  Eigen::Vector2d project(const Vector3& p_cam) const;
-};
+// Camera-frame direction (z = 1) of pixel coordinates (u, v): undistorted by fixed-point iteration
+// when there is distortion.
+Vector3 pixelDirection(const PinholeCamera& camera, double u, double v);
+// Pixel coordinates of a camera-frame point (distorted).
+Eigen::Vector2d projectPoint(const PinholeCamera& camera, const Vector3& p_cam);
 
 struct Ray {
   Vector3 origin, direction;  // world frame; direction = R d_cam (not normalised)
