@@ -14,6 +14,7 @@
 #include "evkit/events/atomic_file.h"
 #include "evkit/base/error.h"
 #include "evkit/events/npy.h"
+#include "evkit/events/slicer.h"
 
 namespace evkit::cli {
 
@@ -157,81 +158,39 @@ int runAccumulate(const Args& args) {
   std::ofstream csv(out_dir.temporaryPath() + "/windows.csv");
   csv << "index,t_begin_us,t_end_us,events\n";
 
-  EventStore pending(sensor);
-  size_t offset = 0;  // first unconsumed event of `pending`
-  size_t windows = 0;
-  bool have_origin = false;
-  int64_t win_begin = 0;
-  bool done = false;
-  int64_t first_t = 0;
-  std::optional<int64_t> end_us;
+  EventSlicer slicer = by_count ? EventSlicer::byCount(count, sensor) : EventSlicer::byTime(window, sensor);
+  const auto write = [&](const EventSlicer::Window& w) {
+    writeWindow(out_dir.temporaryPath(), w.index, w.events, w.t_begin, w.t_end, s);
+    csv << w.index << ',' << w.t_begin << ',' << w.t_end << ',' << w.events.size() << '\n';
+    return w.index + 1 < max_windows;
+  };
   Progress progress("accumulate", reader->info().event_count);
   int64_t read = 0;
-
-  const auto emit = [&](size_t begin, size_t end_idx, int64_t t0, int64_t t1) {
-    writeWindow(out_dir.temporaryPath(), windows, pending.view().subspan(begin, end_idx), t0, t1, s);
-    csv << windows << ',' << t0 << ',' << t1 << ',' << (end_idx - begin) << '\n';
-    ++windows;
-    done = windows >= max_windows;
-  };
-
+  bool started = false;
   Chunk chunk;
-  bool more = true;
-  while (!done) {
-    more = more && reader->next(chunk, size_t{1} << 20);
-    if (more) {
-      EventStore& ev = chunk.events;
-      if (!ev.empty() && !have_origin) {
-        first_t = ev.t.front();
-        const auto resolve = [&](const TimeValue& v) { return v.relative ? first_t + v.us : v.us; };
-        win_begin = start ? resolve(*start) : first_t;
-        if (end) end_us = resolve(*end);
-        have_origin = true;
-      }
-      // Keep what lies in [start, end).
-      const EventSpan kept = ev.view().sliceTime(have_origin ? win_begin : INT64_MIN, end_us ? *end_us : INT64_MAX);
-      pending.append(kept);
-      read += static_cast<int64_t>(ev.size());
-      progress.update(read);
+  while (reader->next(chunk, size_t{1} << 20)) {
+    const EventStore& ev = chunk.events;
+    if (!ev.empty() && !started) {
+      // --start and --end may be relative to the first event.
+      const auto resolve = [&](const TimeValue& v) { return v.relative ? ev.t.front() + v.us : v.us; };
+      if (start) slicer.setOrigin(resolve(*start));
+      if (end) slicer.setEnd(resolve(*end));
+      started = true;
     }
-    const size_t avail_end = pending.size();
-    if (by_count) {
-      while (!done && avail_end - offset >= count) {
-        emit(offset, offset + count, pending.t[offset], pending.t[offset + count - 1] + 1);
-        offset += count;
-      }
-      if (!more && !done && avail_end > offset) {
-        emit(offset, avail_end, pending.t[offset], pending.t[avail_end - 1] + 1);
-        offset = avail_end;
-      }
-    } else if (have_origin) {
-      const int64_t stop = end_us ? *end_us : INT64_MAX;
-      while (!done && win_begin < stop) {
-        const int64_t win_end = win_begin > INT64_MAX - window ? INT64_MAX : win_begin + window;
-        const bool complete = avail_end > offset ? pending.t[avail_end - 1] >= win_end : false;
-        if (!complete && more) break;
-        if (!more && offset >= avail_end) break;
-        const size_t e = offset + pending.view().subspan(offset, avail_end).lowerBound(win_end);
-        emit(offset, e, win_begin, win_end);
-        offset = e;
-        win_begin = win_end;
-      }
-    }
-    if (offset > (size_t{1} << 22) && offset > pending.size() / 2) {
-      EventStore rest(sensor);
-      rest.append(pending.view().subspan(offset, pending.size()));
-      pending = std::move(rest);
-      offset = 0;
-    }
-    if (!more) break;
+    read += static_cast<int64_t>(ev.size());
+    progress.update(read);
+    if (!slicer.accept(ev.view(), write)) break;
   }
+  const bool stopped = slicer.stopped();
+  slicer.finish(write);
+  const size_t windows = slicer.windows();
   progress.finish();
   if (windows == 0) throwInFile(in, "no events in the requested range, nothing written");
   csv.close();
   if (!csv) throwInFile(out, "cannot write windows.csv");
   out_dir.commit();
   std::cerr << "wrote " << windows << " window" << (windows == 1 ? "" : "s") << " to " << out << "/"
-            << (done && more ? " (stopped at --max-windows)" : "") << "\n";
+            << (stopped ? " (stopped at --max-windows)" : "") << "\n";
   return kExitOk;
 }
 

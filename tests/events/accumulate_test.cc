@@ -3,8 +3,11 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <tuple>
 
+#include "evkit/base/error.h"
 #include "evkit/events/npy.h"
+#include "evkit/events/slicer.h"
 #include "evkit/events/random_events.h"
 #include "test_util.h"
 
@@ -145,6 +148,56 @@ TEST(Npy, RoundTripAndHeaderAlignment) {
   const NpyArray back = readNpy(dir / "a.npy");
   EXPECT_EQ(back.shape, (std::vector<size_t>{2, 3}));
   EXPECT_EQ(back.data, data);
+}
+
+}  // namespace
+}  // namespace evkit
+
+namespace evkit {
+namespace {
+
+// Windows of a slicer fed in chunks of `chunk` events: (index, t_begin, t_end, events).
+std::vector<std::tuple<size_t, int64_t, int64_t, size_t>> slice(EventSlicer slicer, const EventStore& ev, size_t chunk,
+                                                               size_t max_windows = 1000) {
+  std::vector<std::tuple<size_t, int64_t, int64_t, size_t>> out;
+  const auto keep = [&](const EventSlicer::Window& w) {
+    out.emplace_back(w.index, w.t_begin, w.t_end, w.events.size());
+    return out.size() < max_windows;
+  };
+  for (size_t b = 0; b < ev.size(); b += chunk) {
+    if (!slicer.accept(ev.view().subspan(b, std::min(ev.size(), b + chunk)), keep)) break;
+  }
+  slicer.finish(keep);
+  return out;
+}
+
+EventStore tenEvents() {
+  EventStore ev(SensorSize{4, 4});
+  for (int64_t t : {100, 105, 120, 121, 139, 140, 141, 180, 199, 260}) ev.push_back(t, 1, 1, 1);
+  return ev;
+}
+
+TEST(EventSlicer, ByTimeGivesTheSameWindowsWhateverTheChunks) {
+  const EventStore ev = tenEvents();
+  using W = std::tuple<size_t, int64_t, int64_t, size_t>;
+  // 20 µs windows from the first event; the empty 200..220..260 windows inside the stream appear.
+  const std::vector<W> expected = {{0, 100, 120, 2}, {1, 120, 140, 3}, {2, 140, 160, 2}, {3, 160, 180, 0},
+                                   {4, 180, 200, 2}, {5, 200, 220, 0}, {6, 220, 240, 0}, {7, 240, 260, 0},
+                                   {8, 260, 280, 1}};
+  for (size_t chunk : {1, 3, 10}) EXPECT_EQ(slice(EventSlicer::byTime(20, ev.sensor()), ev, chunk), expected) << chunk;
+}
+
+TEST(EventSlicer, ByCountOriginEndAndStop) {
+  const EventStore ev = tenEvents();
+  using W = std::tuple<size_t, int64_t, int64_t, size_t>;
+  EXPECT_EQ(slice(EventSlicer::byCount(4, ev.sensor()), ev, 3),
+            (std::vector<W>{{0, 100, 122, 4}, {1, 139, 181, 4}, {2, 199, 261, 2}}));
+  EventSlicer windowed = EventSlicer::byTime(50, ev.sensor());
+  windowed.setOrigin(110);
+  windowed.setEnd(190);
+  EXPECT_EQ(slice(std::move(windowed), ev, 2), (std::vector<W>{{0, 110, 160, 5}, {1, 160, 210, 1}}));
+  EXPECT_EQ(slice(EventSlicer::byTime(20, ev.sensor()), ev, 10, 2).size(), 2u);  // the callback stops it
+  EXPECT_THROW(EventSlicer::byCount(0, ev.sensor()), Error);
 }
 
 }  // namespace
