@@ -15,7 +15,7 @@ namespace evkit {
 
 double measureBlurLength(const Observation& obs) { return measureBlur(obs, obs.contrast).blur_px; }
 
-BlurMeasurement measureBlur(const Observation& obs, const std::optional<std::pair<double, double>>& contrast) {
+BlurMeasurement measureBlur(const Observation& obs, const std::optional<std::pair<double, double>>& contrast, const LogMapping& log) {
   EdiOptions edi_options;
   edi_options.use_observation_contrast = false;
   if (contrast) {
@@ -33,7 +33,6 @@ BlurMeasurement measureBlur(const Observation& obs, const std::optional<std::pai
   const double margin = 0.01 * (edi_options.search_max - edi_options.search_min);
   m.inside = m.searched && m.c_on > edi_options.search_min + margin && m.c_on < edi_options.search_max - margin;
   const cv::Mat grey = toGrey(r.frames.front().image);  // frames are float32
-  const LogMapping log;
   cv::Mat L(grey.size(), CV_32F);
   for (int y = 0; y < grey.rows; ++y) {
     for (int x = 0; x < grey.cols; ++x) L.at<float>(y, x) = log.toLog(std::max(grey.at<float>(y, x), 0.0f));

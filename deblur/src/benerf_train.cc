@@ -67,7 +67,7 @@ Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& 
   if (!o.contrast) o.contrast = obs.contrast;
   const bool estimate = !o.contrast && o.estimate_contrast && o.event_form == BenerfOptions::EventForm::kAuto;
   if (s.views <= 0 || o.init == BenerfOptions::Init::kEvents || estimate) {
-    const BlurMeasurement m = measureBlur(obs, o.contrast);
+    const BlurMeasurement m = measureBlur(obs, o.contrast, o.log);
     s.blur_px = m.blur_px;
     result.parameters["blur_px_measured"] = s.blur_px;
     if (estimate && m.inside) {

@@ -156,14 +156,16 @@ BenerfOptions benerfOptions(const MethodSettings& settings);
 // times the directional gradient; so length ~ c N_events / ((2/pi) sum |grad log L|), with L a
 // latent frame at mid-exposure from EDI.
 double measureBlurLength(const Observation& obs);
-// The same with the thresholds given (none: EDI searches c), and the thresholds it used.
+// The same with the thresholds given (none: EDI searches c) and the log mapping of the run (the
+// gradient is of log L as the event model sees it), and the thresholds it used.
 struct BlurMeasurement {
   double blur_px = 0;
   double c_on = 0, c_off = 0;
   bool searched = false;  // c from EDI's search
   bool inside = false;    // ... and not at an end of the search's range
 };
-BlurMeasurement measureBlur(const Observation& obs, const std::optional<std::pair<double, double>>& contrast);
+BlurMeasurement measureBlur(const Observation& obs, const std::optional<std::pair<double, double>>& contrast,
+                            const LogMapping& log = {});
 // n from the blur length: about one view per 2 px of motion, within [5, 19].
 int virtualViewsFor(double blur_px);
 
