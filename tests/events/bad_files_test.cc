@@ -4,7 +4,6 @@
 
 #include <gtest/gtest.h>
 
-#include <dirent.h>
 #include <unistd.h>
 
 #include <cstring>
@@ -16,11 +15,13 @@
 #include "evkit/base/error.h"
 #include "evkit/events/io.h"
 #include "evkit/events/random_events.h"
+#include "open_descriptors.h"
 #include "test_util.h"
 
 namespace evkit {
 namespace {
 
+using test::openDescriptors;
 using test::ScratchDir;
 
 #if defined(__SANITIZE_ADDRESS__)
@@ -34,15 +35,6 @@ constexpr bool kSanitized = false;
 #else
 constexpr bool kSanitized = false;
 #endif
-
-int openDescriptors() {
-  DIR* dir = ::opendir("/proc/self/fd");
-  if (!dir) return -1;
-  int count = 0;
-  while (const dirent* entry = ::readdir(dir)) count += entry->d_name[0] != '.';
-  ::closedir(dir);
-  return count - 1;  // the listing's own descriptor
-}
 
 // Resident set size in kB (VmRSS of /proc/self/status); -1 when unknown.
 long residentKb() {

@@ -6,7 +6,6 @@
 //
 // Built by `cmake -DEVKIT_FUZZ=ON` with clang; run by scripts/fuzz.sh.
 
-#include <dirent.h>
 #include <hdf5.h>
 #include <unistd.h>
 
@@ -18,6 +17,7 @@
 
 #include "evkit/base/error.h"
 #include "evkit/events/io.h"
+#include "open_descriptors.h"
 
 namespace {
 
@@ -30,16 +30,6 @@ const std::string& scratchPath() {
   return path;
 }
 
-// Open descriptors of this process (the listing's own descriptor excluded).
-int openDescriptors() {
-  DIR* dir = ::opendir("/proc/self/fd");
-  if (!dir) return -1;
-  int count = 0;
-  while (const dirent* entry = ::readdir(dir)) count += entry->d_name[0] != '.';
-  ::closedir(dir);
-  return count - 1;
-}
-
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
@@ -48,14 +38,14 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (!f) return 0;
   std::fwrite(data, 1, size, f);
   std::fclose(f);
-  const int descriptors_before = openDescriptors();
+  const int descriptors_before = evkit::test::openDescriptors();
   try {
     const evkit::Recording rec = evkit::readRecording(path, evkit::parseFormat(EVKIT_FUZZ_FORMAT));
     (void)rec;
   } catch (const evkit::Error&) {
     // Rejected with a message: the expected outcome for most inputs.
   }
-  const int descriptors_after = openDescriptors();
+  const int descriptors_after = evkit::test::openDescriptors();
   if (descriptors_after != descriptors_before) {
     std::fprintf(stderr, "fuzz: %d file descriptors open before reading, %d after: the reader leaked\n",
                  descriptors_before, descriptors_after);
