@@ -10,7 +10,8 @@ namespace evkit {
 
 inline std::string benchPath(const std::string& name) {
   const char* env = std::getenv("EVKIT_BENCH_DIR");
-  const std::filesystem::path dir = env ? std::filesystem::path(env) : std::filesystem::temp_directory_path() / "evkit-bench";
+  const std::filesystem::path dir =
+      env ? std::filesystem::path(env) : std::filesystem::temp_directory_path() / "evkit-bench";
   std::filesystem::create_directories(dir);
   return (dir / name).string();
 }

@@ -65,7 +65,8 @@ void BM_EdiContrastSearch(benchmark::State& state) {
   omp_set_num_threads(static_cast<int>(state.range(0)));
   const Data& d = data();
   const EdiModel model(d.events.view(), 346, 260, d.t0, d.t1);
-  for (auto _ : state) benchmark::DoNotOptimize(model.searchContrast(d.blurry, (d.t0 + d.t1) / 2, 1.0, EdiOptions{}));
+  for (auto _ : state)
+    benchmark::DoNotOptimize(model.searchContrast(d.blurry, (d.t0 + d.t1) / 2, 1.0, EdiOptions{}));
 }
 
 BENCHMARK(BM_EdiModel)->Unit(benchmark::kMillisecond);

@@ -40,9 +40,15 @@ class Out {
  public:
   explicit Out(const std::string& path) : f_(path, std::ios::binary) {}
   void str(const std::string& s) { f_ << s; }
-  void be32(uint32_t v) { for (int i = 3; i >= 0; --i) f_.put(static_cast<char>(v >> (8 * i))); }
-  void le32(uint32_t v) { for (int i = 0; i < 4; ++i) f_.put(static_cast<char>(v >> (8 * i))); }
-  void le16(uint16_t v) { for (int i = 0; i < 2; ++i) f_.put(static_cast<char>(v >> (8 * i))); }
+  void be32(uint32_t v) {
+    for (int i = 3; i >= 0; --i) f_.put(static_cast<char>(v >> (8 * i)));
+  }
+  void le32(uint32_t v) {
+    for (int i = 0; i < 4; ++i) f_.put(static_cast<char>(v >> (8 * i)));
+  }
+  void le16(uint16_t v) {
+    for (int i = 0; i < 2; ++i) f_.put(static_cast<char>(v >> (8 * i)));
+  }
 
  private:
   std::ofstream f_;
@@ -63,7 +69,8 @@ std::string makeFile(const std::string& format) {
     Out out(path);
     out.str("#!AER-DAT2.0\r\n# AEChip: eu.seebetter.ini.chips.davis.DAVIS240C\r\n");
     for (size_t i = 0; i < ev.size(); ++i) {
-      out.be32((uint32_t(179 - ev.y[i]) << 22) | (uint32_t(239 - ev.x[i]) << 12) | (uint32_t(ev.p[i] > 0) << 11));
+      out.be32((uint32_t(179 - ev.y[i]) << 22) | (uint32_t(239 - ev.x[i]) << 12) |
+               (uint32_t(ev.p[i] > 0) << 11));
       out.be32(static_cast<uint32_t>(ev.t[i] - t0));
     }
   } else if (format == "aedat3") {
@@ -71,9 +78,11 @@ std::string makeFile(const std::string& format) {
     out.str("#!AER-DAT3.1\r\n#Source 1: DAVIS240C\r\n#!END-HEADER\r\n");
     for (size_t b = 0; b < ev.size(); b += 8192) {
       const size_t n = std::min<size_t>(8192, ev.size() - b);
-      out.le16(1), out.le16(1), out.le32(8), out.le32(4), out.le32(0), out.le32(uint32_t(n)), out.le32(uint32_t(n)), out.le32(uint32_t(n));
+      out.le16(1), out.le16(1), out.le32(8), out.le32(4), out.le32(0), out.le32(uint32_t(n)),
+          out.le32(uint32_t(n)), out.le32(uint32_t(n));
       for (size_t i = b; i < b + n; ++i) {
-        out.le32((uint32_t(ev.x[i]) << 17) | (uint32_t(ev.y[i]) << 2) | (uint32_t(ev.p[i] > 0) << 1) | 1u);
+        out.le32((uint32_t(ev.x[i]) << 17) | (uint32_t(ev.y[i]) << 2) |
+                 (uint32_t(ev.p[i] > 0) << 1) | 1u);
         out.le32(static_cast<uint32_t>(ev.t[i] - t0));
       }
     }
@@ -87,7 +96,8 @@ std::string makeFile(const std::string& format) {
         high = t >> 6;
         out.le32(0x80000000u | uint32_t(high & 0x0FFFFFFF));
       }
-      out.le32((uint32_t(ev.p[i] > 0) << 28) | (uint32_t(t & 63) << 22) | (uint32_t(ev.x[i]) << 11) | ev.y[i]);
+      out.le32((uint32_t(ev.p[i] > 0) << 28) | (uint32_t(t & 63) << 22) |
+               (uint32_t(ev.x[i]) << 11) | ev.y[i]);
     }
   } else if (format == "dat") {
     Out out(path);
@@ -121,10 +131,18 @@ void BM_WriteAedat4(benchmark::State& state) {
   state.SetItemsProcessed(static_cast<int64_t>(state.iterations() * kEvents));
 }
 
-BENCHMARK_CAPTURE(BM_Read, aedat4_lz4, std::string("aedat4"))->Unit(benchmark::kMillisecond)->Iterations(3);
-BENCHMARK_CAPTURE(BM_Read, aedat4_zstd, std::string("aedat4zstd"))->Unit(benchmark::kMillisecond)->Iterations(3);
-BENCHMARK_CAPTURE(BM_Read, aedat2, std::string("aedat2"))->Unit(benchmark::kMillisecond)->Iterations(3);
-BENCHMARK_CAPTURE(BM_Read, aedat3, std::string("aedat3"))->Unit(benchmark::kMillisecond)->Iterations(3);
+BENCHMARK_CAPTURE(BM_Read, aedat4_lz4, std::string("aedat4"))
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(3);
+BENCHMARK_CAPTURE(BM_Read, aedat4_zstd, std::string("aedat4zstd"))
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(3);
+BENCHMARK_CAPTURE(BM_Read, aedat2, std::string("aedat2"))
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(3);
+BENCHMARK_CAPTURE(BM_Read, aedat3, std::string("aedat3"))
+    ->Unit(benchmark::kMillisecond)
+    ->Iterations(3);
 BENCHMARK_CAPTURE(BM_Read, evt2, std::string("evt2"))->Unit(benchmark::kMillisecond)->Iterations(3);
 BENCHMARK_CAPTURE(BM_Read, dat, std::string("dat"))->Unit(benchmark::kMillisecond)->Iterations(3);
 BENCHMARK(BM_WriteAedat4)->Unit(benchmark::kMillisecond)->Iterations(1);

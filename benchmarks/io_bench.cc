@@ -38,7 +38,8 @@ const Recording& recording() {
 
 std::string pathFor(const std::string& name) { return benchPath(name); }
 
-const Compression kCompressions[] = {Compression::kNone, Compression::kDeflate, Compression::kBloscLz4};
+const Compression kCompressions[] = {Compression::kNone, Compression::kDeflate,
+                                     Compression::kBloscLz4};
 
 std::string hdf5Name(int compression) {
   return "events_" + compressionName(kCompressions[compression]) + ".h5";
@@ -66,10 +67,12 @@ void BM_Hdf5Write(benchmark::State& state) {
   const Recording& rec = recording();
   WriterOptions options;
   options.compression = kCompressions[state.range(0)];
-  for (auto _ : state) writeRecording(pathFor(hdf5Name(static_cast<int>(state.range(0)))), rec, std::nullopt, options);
+  for (auto _ : state)
+    writeRecording(pathFor(hdf5Name(static_cast<int>(state.range(0)))), rec, std::nullopt, options);
   state.SetItemsProcessed(static_cast<int64_t>(state.iterations() * rec.events.size()));
   state.SetLabel(compressionName(kCompressions[state.range(0)]));
-  state.counters["MB"] = static_cast<double>(fs::file_size(pathFor(hdf5Name(static_cast<int>(state.range(0)))))) / 1e6;
+  state.counters["MB"] =
+      static_cast<double>(fs::file_size(pathFor(hdf5Name(static_cast<int>(state.range(0)))))) / 1e6;
 }
 
 void BM_Hdf5Read(benchmark::State& state) {

@@ -2,7 +2,8 @@
 // reference) and for hash-grid fields of several sizes (the choice of the fast field), and a full
 // training step (rays/s) for each.
 //
-//   ./build/benchmarks/evkit_nerf_bench --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
+//   ./build/benchmarks/evkit_nerf_bench --benchmark_repetitions=5
+//   --benchmark_report_aggregates_only=true
 //
 // (the median of 5 repetitions: this shared machine drifts by +-20% between runs)
 
@@ -37,7 +38,8 @@ MatrixF samplePositions(int batch, bool along_rays) {
   return p;
 }
 
-void fieldStep(benchmark::State& state, RadianceField<float>& field, int batch, bool along_rays = false) {
+void fieldStep(benchmark::State& state, RadianceField<float>& field, int batch,
+               bool along_rays = false) {
   const MatrixF p = samplePositions(batch, along_rays);
   const MatrixF d = MatrixF::Random(1 + field.channels(), batch);
   for (auto _ : state) {
@@ -63,9 +65,11 @@ void BM_HashField(benchmark::State& state) {
   auto field = makeHashField<float>(c, 3, 1);
   const bool rays = state.range(3) != 0;
   fieldStep(state, *field, 65536, rays);
-  state.SetLabel(std::to_string(c.grid.levels) + "x" + std::to_string(c.grid.features) + ", 2^" + std::to_string(c.grid.log2_table) +
-                 " entries, " + std::to_string(c.grid.levels * (size_t{1} << c.grid.log2_table) * c.grid.features * 4 / 1000000) + " MB, " +
-                 (rays ? "ray samples" : "random positions"));
+  state.SetLabel(std::to_string(c.grid.levels) + "x" + std::to_string(c.grid.features) + ", 2^" +
+                 std::to_string(c.grid.log2_table) + " entries, " +
+                 std::to_string(c.grid.levels * (size_t{1} << c.grid.log2_table) * c.grid.features *
+                                4 / 1000000) +
+                 " MB, " + (rays ? "ray samples" : "random positions"));
 }
 
 void trainingSteps(benchmark::State& state, RadianceField<float>& field, int rays) {

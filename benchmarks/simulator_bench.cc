@@ -25,7 +25,8 @@ std::vector<cv::Mat> makeVideo(int w, int h, int frames) {
   for (int f = 0; f < frames; ++f) {
     cv::Mat img(h, w, CV_32F);
     float* d = img.ptr<float>();
-    for (size_t i = 0; i < phase.size(); ++i) d[i] = log.fromLog(-2.0f + 1.0f * std::sin(phase[i] + 0.5f * static_cast<float>(f)));
+    for (size_t i = 0; i < phase.size(); ++i)
+      d[i] = log.fromLog(-2.0f + 1.0f * std::sin(phase[i] + 0.5f * static_cast<float>(f)));
     video.push_back(img);
   }
   return video;
@@ -51,12 +52,20 @@ void BM_Simulate(benchmark::State& state) {
     events += out.size();
     ++frames;
   }
-  state.counters["Mev/s"] = benchmark::Counter(static_cast<double>(events) / 1e6, benchmark::Counter::kIsRate);
-  state.counters["frames/s"] = benchmark::Counter(static_cast<double>(frames), benchmark::Counter::kIsRate);
+  state.counters["Mev/s"] =
+      benchmark::Counter(static_cast<double>(events) / 1e6, benchmark::Counter::kIsRate);
+  state.counters["frames/s"] =
+      benchmark::Counter(static_cast<double>(frames), benchmark::Counter::kIsRate);
   state.counters["ev/frame"] = static_cast<double>(events) / static_cast<double>(frames);
 }
 
-BENCHMARK(BM_Simulate)->Args({346, 260, 1})->Args({346, 260, 2})->Args({1280, 720, 1})->Args({1280, 720, 2})->UseRealTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_Simulate)
+    ->Args({346, 260, 1})
+    ->Args({346, 260, 2})
+    ->Args({1280, 720, 1})
+    ->Args({1280, 720, 2})
+    ->UseRealTime()
+    ->Unit(benchmark::kMillisecond);
 
 }  // namespace
 }  // namespace evkit

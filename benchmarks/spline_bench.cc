@@ -13,7 +13,9 @@ namespace {
 
 Trajectory makeTrajectory(TrajectoryKind kind) {
   std::vector<SE3> knots;
-  for (int k = 0; k < 4; ++k) knots.push_back(expSE3((Vector6() << 0.01 * k, 0.002 * k, 0, 0.003 * k, -0.002 * k, 0.001).finished()));
+  for (int k = 0; k < 4; ++k)
+    knots.push_back(
+        expSE3((Vector6() << 0.01 * k, 0.002 * k, 0, 0.003 * k, -0.002 * k, 0.001).finished()));
   return Trajectory(kind, 0, 100000, knots);
 }
 

@@ -5,11 +5,10 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
-#include <set>
-#include <sstream>
-
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <set>
+#include <sstream>
 
 #include "common.h"
 #include "evkit/base/error.h"
@@ -77,7 +76,8 @@ double csvNumber(const std::string& v) {
 }
 
 constexpr const char* kCsvHeader =
-    "group,scene,what,method,budget,status,wall_s,psnr_mid,ssim_mid,brisque_mid,psnr_mean,rotation_error_deg,"
+    "group,scene,what,method,budget,status,wall_s,psnr_mid,ssim_mid,brisque_mid,psnr_mean,rotation_"
+    "error_deg,"
     "rotation_truth_deg,iterations,nonfinite";
 
 std::string csvNumberField(double v) {
@@ -88,7 +88,9 @@ std::string csvNumberField(double v) {
   return s.str();
 }
 
-std::string runName(const BenchRow& r) { return r.budget == "-" ? r.method : r.method + " " + r.budget; }
+std::string runName(const BenchRow& r) {
+  return r.budget == "-" ? r.method : r.method + " " + r.budget;
+}
 
 // Rows of the group the summary and the plot speak for: "standard" when present, else all.
 std::vector<BenchRow> summaryRows(const std::vector<BenchRow>& rows, std::string* group) {
@@ -143,7 +145,8 @@ std::vector<Summary> summarise(const std::vector<BenchRow>& rows) {
     s.rotation = s.n_rotation ? s.rotation / s.n_rotation : std::nan("");
     out.push_back(s);
   }
-  std::sort(out.begin(), out.end(), [](const Summary& a, const Summary& b) { return a.first_seen < b.first_seen; });
+  std::sort(out.begin(), out.end(),
+            [](const Summary& a, const Summary& b) { return a.first_seen < b.first_seen; });
   return out;
 }
 
@@ -154,7 +157,8 @@ std::string health(const BenchRow& r) {
 
 }  // namespace
 
-std::vector<BenchRun> benchRuns(const std::vector<std::string>& methods, const std::vector<std::string>& budgets,
+std::vector<BenchRun> benchRuns(const std::vector<std::string>& methods,
+                                const std::vector<std::string>& budgets,
                                 const std::vector<std::string>& mlp_budgets,
                                 const std::map<std::string, MethodSettings>& extra) {
   std::vector<BenchRun> runs;
@@ -176,7 +180,8 @@ std::vector<BenchRun> benchRuns(const std::vector<std::string>& methods, const s
         runs.push_back({m, label, makeMethod("benerf", with_extra(m, settings))});
       }
     } else {
-      throw UsageError("--methods: unknown method '" + m + "' (known: blurry, edi, benerf, benerf-mlp)");
+      throw UsageError("--methods: unknown method '" + m +
+                       "' (known: blurry, edi, benerf, benerf-mlp)");
     }
   }
   return runs;
@@ -184,18 +189,23 @@ std::vector<BenchRun> benchRuns(const std::vector<std::string>& methods, const s
 
 double exposureRotationDeg(const std::vector<StampedPose>& poses) {
   if (poses.size() < 2) return std::nan("");
-  return logSO3(Quaternion(poses.front().pose.rotation().conjugate() * poses.back().pose.rotation())).norm() * 180.0 / M_PI;
+  return logSO3(
+             Quaternion(poses.front().pose.rotation().conjugate() * poses.back().pose.rotation()))
+             .norm() *
+         180.0 / M_PI;
 }
 
-double exposureRotationErrorDeg(const std::vector<StampedPose>& a, const std::vector<StampedPose>& b) {
+double exposureRotationErrorDeg(const std::vector<StampedPose>& a,
+                                const std::vector<StampedPose>& b) {
   if (a.size() < 2 || b.size() < 2) return std::nan("");
   const Quaternion qa = a.front().pose.rotation().conjugate() * a.back().pose.rotation();
   const Quaternion qb = b.front().pose.rotation().conjugate() * b.back().pose.rotation();
   return logSO3(Quaternion(qa.conjugate() * qb)).norm() * 180.0 / M_PI;
 }
 
-BenchRow runBench(const Observation& obs, const std::string& group, const std::string& scene, const std::string& what,
-                  const BenchRun& run, const std::string& out_dir, MethodReport* report) {
+BenchRow runBench(const Observation& obs, const std::string& group, const std::string& scene,
+                  const std::string& what, const BenchRun& run, const std::string& out_dir,
+                  MethodReport* report) {
   BenchRow row;
   row.group = group;
   row.scene = scene;
@@ -216,8 +226,10 @@ BenchRow runBench(const Observation& obs, const std::string& group, const std::s
       values = values.reshape(1, 1);
       for (int i = 0; i < values.cols; ++i) row.nonfinite += !std::isfinite(values.at<float>(0, i));
     }
-    if (r.result.trajectory) row.rotation_error_deg = exposureRotationErrorDeg(*r.result.trajectory, obs.gt_poses);
-    if (const auto it = r.result.parameters.find("iterations"); it != r.result.parameters.end()) row.iterations = it->second;
+    if (r.result.trajectory)
+      row.rotation_error_deg = exposureRotationErrorDeg(*r.result.trajectory, obs.gt_poses);
+    if (const auto it = r.result.parameters.find("iterations"); it != r.result.parameters.end())
+      row.iterations = it->second;
     if (report) *report = std::move(r);
   } catch (const Error& e) {
     row.status = std::string("failed: ") + e.what();
@@ -235,9 +247,12 @@ std::vector<BenchRow> readBenchCsv(const std::string& path) {
     const std::vector<std::string> f = csvSplit(line);
     if (f.size() != 15) continue;
     BenchRow r;
-    r.group = f[0], r.scene = f[1], r.what = f[2], r.method = f[3], r.budget = f[4], r.status = f[5];
-    r.wall_s = csvNumber(f[6]), r.psnr = csvNumber(f[7]), r.ssim = csvNumber(f[8]), r.brisque = csvNumber(f[9]);
-    r.psnr_mean = csvNumber(f[10]), r.rotation_error_deg = csvNumber(f[11]), r.rotation_truth_deg = csvNumber(f[12]);
+    r.group = f[0], r.scene = f[1], r.what = f[2], r.method = f[3], r.budget = f[4],
+    r.status = f[5];
+    r.wall_s = csvNumber(f[6]), r.psnr = csvNumber(f[7]), r.ssim = csvNumber(f[8]),
+    r.brisque = csvNumber(f[9]);
+    r.psnr_mean = csvNumber(f[10]), r.rotation_error_deg = csvNumber(f[11]),
+    r.rotation_truth_deg = csvNumber(f[12]);
     r.iterations = csvNumber(f[13]);
     r.nonfinite = static_cast<int64_t>(csvNumber(f[14]));
     rows.push_back(r);
@@ -245,16 +260,19 @@ std::vector<BenchRow> readBenchCsv(const std::string& path) {
   return rows;
 }
 
-void writeBenchResults(const std::string& dir, const std::vector<BenchRow>& rows, const std::string& title) {
+void writeBenchResults(const std::string& dir, const std::vector<BenchRow>& rows,
+                       const std::string& title) {
   fs::create_directories(dir);
   std::ostringstream csv;
   csv << kCsvHeader << "\n";
   for (const BenchRow& r : rows) {
-    csv << csvField(r.group) << ',' << csvField(r.scene) << ',' << csvField(r.what) << ',' << csvField(r.method) << ','
-        << csvField(r.budget) << ',' << csvField(r.status) << ',' << csvNumberField(r.wall_s) << ',' << csvNumberField(r.psnr) << ','
-        << csvNumberField(r.ssim) << ',' << csvNumberField(r.brisque) << ',' << csvNumberField(r.psnr_mean) << ','
-        << csvNumberField(r.rotation_error_deg) << ',' << csvNumberField(r.rotation_truth_deg) << ',' << csvNumberField(r.iterations)
-        << ',' << r.nonfinite << "\n";
+    csv << csvField(r.group) << ',' << csvField(r.scene) << ',' << csvField(r.what) << ','
+        << csvField(r.method) << ',' << csvField(r.budget) << ',' << csvField(r.status) << ','
+        << csvNumberField(r.wall_s) << ',' << csvNumberField(r.psnr) << ','
+        << csvNumberField(r.ssim) << ',' << csvNumberField(r.brisque) << ','
+        << csvNumberField(r.psnr_mean) << ',' << csvNumberField(r.rotation_error_deg) << ','
+        << csvNumberField(r.rotation_truth_deg) << ',' << csvNumberField(r.iterations) << ','
+        << r.nonfinite << "\n";
   }
   writeFileAtomically(dir + "/results.csv", csv.str());
 
@@ -262,13 +280,16 @@ void writeBenchResults(const std::string& dir, const std::vector<BenchRow>& rows
   const std::vector<BenchRow> summary_rows = summaryRows(rows, &group);
   std::ostringstream md;
   md << "# " << title << "\n\n## Speed against error (mean over " << group << ")\n\n"
-     << "PSNR, SSIM and BRISQUE of the mid-exposure frame; rotation error: the angle between the estimated and the true "
+     << "PSNR, SSIM and BRISQUE of the mid-exposure frame; rotation error: the angle between the "
+        "estimated and the true "
         "rotation over the exposure. Means over the scenes a run finished.\n\n"
-     << "| method | budget | PSNR (dB) | SSIM | BRISQUE | rotation error (°) | wall time (s) | scenes | failed | non-finite |\n"
+     << "| method | budget | PSNR (dB) | SSIM | BRISQUE | rotation error (°) | wall time (s) | "
+        "scenes | failed | non-finite |\n"
      << "|---|---|---|---|---|---|---|---|---|---|\n";
   for (const Summary& s : summarise(summary_rows)) {
-    md << "| " << s.method << " | " << s.budget << " | " << fixedOrDash(s.n ? s.psnr : NAN, 2) << " | " << fixedOrDash(s.n ? s.ssim : NAN, 4)
-       << " | " << fixedOrDash(s.brisque, 1) << " | " << fixedOrDash(s.rotation, 2) << " | " << fixedOrDash(s.n ? s.wall : NAN, s.wall < 1 ? 3 : 1)
+    md << "| " << s.method << " | " << s.budget << " | " << fixedOrDash(s.n ? s.psnr : NAN, 2)
+       << " | " << fixedOrDash(s.n ? s.ssim : NAN, 4) << " | " << fixedOrDash(s.brisque, 1) << " | "
+       << fixedOrDash(s.rotation, 2) << " | " << fixedOrDash(s.n ? s.wall : NAN, s.wall < 1 ? 3 : 1)
        << " | " << s.n << " | " << s.failed << " | " << s.nonfinite << " |\n";
   }
   // Hard cases: one line per case, PSNR per run, and the numerical health.
@@ -277,11 +298,13 @@ void writeBenchResults(const std::string& dir, const std::vector<BenchRow>& rows
   for (const BenchRow& r : rows) {
     if (r.group != "hard") continue;
     if (!hard.count(r.scene)) hard_cases.push_back(r.scene);
-    if (std::find(run_names.begin(), run_names.end(), runName(r)) == run_names.end()) run_names.push_back(runName(r));
+    if (std::find(run_names.begin(), run_names.end(), runName(r)) == run_names.end())
+      run_names.push_back(runName(r));
     hard[r.scene][runName(r)] = &r;
   }
   if (!hard_cases.empty()) {
-    md << "\n## Hard cases (PSNR of the mid frame, dB; health: failures and non-finite output values)\n\n| case | what |";
+    md << "\n## Hard cases (PSNR of the mid frame, dB; health: failures and non-finite output "
+          "values)\n\n| case | what |";
     for (const std::string& n : run_names) md << ' ' << n << " |";
     md << " health |\n|---|---|";
     for (size_t i = 0; i < run_names.size(); ++i) md << "---|";
@@ -292,25 +315,34 @@ void writeBenchResults(const std::string& dir, const std::vector<BenchRow>& rows
       std::string problems;
       for (const std::string& n : run_names) {
         const auto it = runs.find(n);
-        md << ' ' << (it == runs.end() ? "" : it->second->ok() ? fixedOrDash(it->second->psnr, 2) : "failed") << " |";
-        if (it != runs.end() && health(*it->second) != "ok") problems += (problems.empty() ? "" : "; ") + n + ": " + health(*it->second);
+        md << ' '
+           << (it == runs.end()   ? ""
+               : it->second->ok() ? fixedOrDash(it->second->psnr, 2)
+                                  : "failed")
+           << " |";
+        if (it != runs.end() && health(*it->second) != "ok")
+          problems += (problems.empty() ? "" : "; ") + n + ": " + health(*it->second);
       }
       md << ' ' << (problems.empty() ? "ok" : problems) << " |\n";
     }
   }
-  md << "\n## Every run\n\n| group | scene | method | budget | PSNR (dB) | SSIM | BRISQUE | rotation error (°) | true rotation (°) | "
-        "iterations | wall time (s) | health |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+  md << "\n## Every run\n\n| group | scene | method | budget | PSNR (dB) | SSIM | BRISQUE | "
+        "rotation error (°) | true rotation (°) | "
+        "iterations | wall time (s) | health "
+        "|\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const BenchRow& r : rows) {
-    md << "| " << r.group << " | " << r.scene << " | " << r.method << " | " << r.budget << " | " << fixedOrDash(r.psnr, 2) << " | "
-       << fixedOrDash(r.ssim, 4) << " | " << fixedOrDash(r.brisque, 1) << " | " << fixedOrDash(r.rotation_error_deg, 2) << " | "
-       << fixedOrDash(r.rotation_truth_deg, 2) << " | " << fixedOrDash(r.iterations, 0) << " | " << fixedOrDash(r.wall_s, r.wall_s < 1 ? 3 : 1) << " | "
-       << health(r) << " |\n";
+    md << "| " << r.group << " | " << r.scene << " | " << r.method << " | " << r.budget << " | "
+       << fixedOrDash(r.psnr, 2) << " | " << fixedOrDash(r.ssim, 4) << " | "
+       << fixedOrDash(r.brisque, 1) << " | " << fixedOrDash(r.rotation_error_deg, 2) << " | "
+       << fixedOrDash(r.rotation_truth_deg, 2) << " | " << fixedOrDash(r.iterations, 0) << " | "
+       << fixedOrDash(r.wall_s, r.wall_s < 1 ? 3 : 1) << " | " << health(r) << " |\n";
   }
   writeFileAtomically(dir + "/results.md", md.str());
   drawSpeedError(rows, title, dir + "/speed_vs_error.png");
 }
 
-void drawSpeedError(const std::vector<BenchRow>& all_rows, const std::string& title, const std::string& png_path) {
+void drawSpeedError(const std::vector<BenchRow>& all_rows, const std::string& title,
+                    const std::string& png_path) {
   std::string group;
   const std::vector<BenchRow> rows = summaryRows(all_rows, &group);
   std::vector<Summary> points;
@@ -321,10 +353,13 @@ void drawSpeedError(const std::vector<BenchRow>& all_rows, const std::string& ti
   cv::Mat img(kHeight, kWidth, CV_8UC3, cv::Scalar(255, 255, 255));
   const cv::Scalar ink(40, 40, 40), grid(225, 225, 225);
   const auto font = cv::FONT_HERSHEY_SIMPLEX;
-  const auto text = [&](const std::string& s, cv::Point p, double scale, const cv::Scalar& colour, int thickness = 1) {
+  const auto text = [&](const std::string& s, cv::Point p, double scale, const cv::Scalar& colour,
+                        int thickness = 1) {
     cv::putText(img, s, p, font, scale, colour, thickness, cv::LINE_AA);
   };
-  const auto width_of = [&](const std::string& s, double scale) { return cv::getTextSize(s, font, scale, 1, nullptr).width; };
+  const auto width_of = [&](const std::string& s, double scale) {
+    return cv::getTextSize(s, font, scale, 1, nullptr).width;
+  };
 
   // Axes: x = log10(wall time) over whole decades, y = PSNR over whole dB with a margin.
   const double floor_s = 1e-4;  // the blurry "method" takes microseconds
@@ -333,21 +368,26 @@ void drawSpeedError(const std::vector<BenchRow>& all_rows, const std::string& ti
     x0 = 1e9, x1 = -1e9, y0 = 1e9, y1 = -1e9;
     for (const Summary& s : points) {
       const double lx = std::log10(std::max(s.wall, floor_s));
-      x0 = std::min(x0, lx), x1 = std::max(x1, lx), y0 = std::min(y0, s.psnr), y1 = std::max(y1, s.psnr);
+      x0 = std::min(x0, lx), x1 = std::max(x1, lx), y0 = std::min(y0, s.psnr),
+      y1 = std::max(y1, s.psnr);
     }
     x0 = std::floor(x0), x1 = std::max(std::ceil(x1), x0 + 1);
     y0 = std::floor(y0 - 1), y1 = std::ceil(y1 + 1);
   }
   const int pw = kWidth - kLeft - kRight, ph = kHeight - kTop - kBottom;
   const auto px = [&](double wall) {
-    return kLeft + static_cast<int>(std::lround((std::log10(std::max(wall, floor_s)) - x0) / (x1 - x0) * pw));
+    return kLeft + static_cast<int>(
+                       std::lround((std::log10(std::max(wall, floor_s)) - x0) / (x1 - x0) * pw));
   };
-  const auto py = [&](double psnr) { return kTop + static_cast<int>(std::lround((y1 - psnr) / (y1 - y0) * ph)); };
+  const auto py = [&](double psnr) {
+    return kTop + static_cast<int>(std::lround((y1 - psnr) / (y1 - y0) * ph));
+  };
   for (int d = static_cast<int>(x0); d <= static_cast<int>(x1); ++d) {
     const int x = px(std::pow(10.0, d));
     cv::line(img, {x, kTop}, {x, kTop + ph}, grid);
-    std::string label = d <= -3 ? fixedOrDash(std::pow(10.0, d + 3), d + 3 < 0 ? -(d + 3) : 0) + " ms"
-                                : fixedOrDash(std::pow(10.0, d), d < 0 ? -d : 0) + " s";
+    std::string label = d <= -3
+                            ? fixedOrDash(std::pow(10.0, d + 3), d + 3 < 0 ? -(d + 3) : 0) + " ms"
+                            : fixedOrDash(std::pow(10.0, d), d < 0 ? -d : 0) + " s";
     text(label, {x - width_of(label, 0.45) / 2, kTop + ph + 20}, 0.45, ink);
   }
   const double y_step = (y1 - y0) > 24 ? 5 : (y1 - y0) > 10 ? 2 : 1;
@@ -358,15 +398,19 @@ void drawSpeedError(const std::vector<BenchRow>& all_rows, const std::string& ti
     text(label, {kLeft - 8 - width_of(label, 0.45), y + 5}, 0.45, ink);
   }
   cv::rectangle(img, {kLeft, kTop}, {kLeft + pw, kTop + ph}, ink);
-  text("wall time per frame (log scale)", {kLeft + pw / 2 - width_of("wall time per frame (log scale)", 0.5) / 2, kHeight - 18}, 0.5, ink);
+  text("wall time per frame (log scale)",
+       {kLeft + pw / 2 - width_of("wall time per frame (log scale)", 0.5) / 2, kHeight - 18}, 0.5,
+       ink);
   text("PSNR (dB)", {10, kTop - 12}, 0.5, ink);
   text(title + " - mean over " + group, {kLeft, 30}, 0.6, ink, 1);
 
   // One colour per method; points joined in order of wall time, labelled by budget.
-  const std::vector<cv::Scalar> palette = {{120, 120, 120}, {180, 119, 31}, {40, 39, 214}, {44, 160, 44}, {189, 103, 148}, {14, 127, 255}};
+  const std::vector<cv::Scalar> palette = {{120, 120, 120}, {180, 119, 31},  {40, 39, 214},
+                                           {44, 160, 44},   {189, 103, 148}, {14, 127, 255}};
   std::vector<std::string> methods;
   for (const Summary& s : points) {
-    if (std::find(methods.begin(), methods.end(), s.method) == methods.end()) methods.push_back(s.method);
+    if (std::find(methods.begin(), methods.end(), s.method) == methods.end())
+      methods.push_back(s.method);
   }
   for (size_t m = 0; m < methods.size(); ++m) {
     const cv::Scalar colour = palette[m % palette.size()];
@@ -374,10 +418,12 @@ void drawSpeedError(const std::vector<BenchRow>& all_rows, const std::string& ti
     for (const Summary& s : points) {
       if (s.method == methods[m]) curve.push_back(s);
     }
-    std::sort(curve.begin(), curve.end(), [](const Summary& a, const Summary& b) { return a.wall < b.wall; });
+    std::sort(curve.begin(), curve.end(),
+              [](const Summary& a, const Summary& b) { return a.wall < b.wall; });
     for (size_t i = 0; i < curve.size(); ++i) {
       const cv::Point p(px(curve[i].wall), py(curve[i].psnr));
-      if (i > 0) cv::line(img, {px(curve[i - 1].wall), py(curve[i - 1].psnr)}, p, colour, 2, cv::LINE_AA);
+      if (i > 0)
+        cv::line(img, {px(curve[i - 1].wall), py(curve[i - 1].psnr)}, p, colour, 2, cv::LINE_AA);
       cv::circle(img, p, 5, colour, cv::FILLED, cv::LINE_AA);
       if (curve[i].budget != "-") text(curve[i].budget, {p.x + 7, p.y - 7}, 0.42, colour);
     }

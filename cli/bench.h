@@ -24,7 +24,8 @@ struct BenchRun {
 // the MLP once per entry of `mlp_budgets`. A budget is N (iterations of the fast budget), a name
 // (fast, balanced, quality) or a duration in seconds ("60s"). `extra` holds METHOD.KEY settings
 // added to every run of that method. Throws UsageError on an unknown method or a bad budget.
-std::vector<BenchRun> benchRuns(const std::vector<std::string>& methods, const std::vector<std::string>& budgets,
+std::vector<BenchRun> benchRuns(const std::vector<std::string>& methods,
+                                const std::vector<std::string>& budgets,
                                 const std::vector<std::string>& mlp_budgets,
                                 const std::map<std::string, MethodSettings>& extra);
 
@@ -33,7 +34,7 @@ struct BenchRow {
   std::string status = "ok";  // or "failed: <message>"
   double wall_s = std::nan("");
   double psnr = std::nan(""), ssim = std::nan(""), brisque = std::nan("");  // of the mid frame
-  double psnr_mean = std::nan("");     // over every ground-truth time
+  double psnr_mean = std::nan("");           // over every ground-truth time
   double rotation_error_deg = std::nan("");  // of the exposure's rotation, R(start)^T R(end)
   double rotation_truth_deg = std::nan("");
   double iterations = std::nan("");
@@ -45,21 +46,25 @@ struct BenchRow {
 
 // Runs one method on one observation, writing its outputs into out_dir (empty: none). Failures
 // become a row with status "failed: ..."; the report is returned through `report` when given.
-BenchRow runBench(const Observation& obs, const std::string& group, const std::string& scene, const std::string& what,
-                  const BenchRun& run, const std::string& out_dir, MethodReport* report = nullptr);
+BenchRow runBench(const Observation& obs, const std::string& group, const std::string& scene,
+                  const std::string& what, const BenchRun& run, const std::string& out_dir,
+                  MethodReport* report = nullptr);
 
 // The angle (degrees) of R_a(start)^T R_a(end) against the same for b.
-double exposureRotationErrorDeg(const std::vector<StampedPose>& a, const std::vector<StampedPose>& b);
+double exposureRotationErrorDeg(const std::vector<StampedPose>& a,
+                                const std::vector<StampedPose>& b);
 double exposureRotationDeg(const std::vector<StampedPose>& poses);
 
 // results.csv (every row), results.md (the mean per method and budget, per scene, hard cases with
 // their numerical health) and speed_vs_error.png, each written atomically into `dir`.
-void writeBenchResults(const std::string& dir, const std::vector<BenchRow>& rows, const std::string& title);
+void writeBenchResults(const std::string& dir, const std::vector<BenchRow>& rows,
+                       const std::string& title);
 // Reads a results.csv written before (to keep finished runs); missing file: empty.
 std::vector<BenchRow> readBenchCsv(const std::string& path);
 
 // The speed-against-error plot: mean PSNR against log wall time, one curve per method through its
 // budgets (points labelled by budget). Rows of the "standard" group when there are some, else all.
-void drawSpeedError(const std::vector<BenchRow>& rows, const std::string& title, const std::string& png_path);
+void drawSpeedError(const std::vector<BenchRow>& rows, const std::string& title,
+                    const std::string& png_path);
 
 }  // namespace evkit::cli

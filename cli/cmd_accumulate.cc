@@ -6,13 +6,12 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
-
 #include <opencv2/imgcodecs.hpp>
 
 #include "common.h"
+#include "evkit/base/error.h"
 #include "evkit/events/accumulate.h"
 #include "evkit/events/atomic_file.h"
-#include "evkit/base/error.h"
 #include "evkit/events/npy.h"
 #include "evkit/events/slicer.h"
 
@@ -43,8 +42,8 @@ struct AccumulateSettings {
 };
 
 // Computes one window's representation and writes <index>.png and <index>.npy into dir.
-void writeWindow(const std::string& dir, size_t index, const EventSpan& events, int64_t t_begin, int64_t t_end,
-                 const AccumulateSettings& s) {
+void writeWindow(const std::string& dir, size_t index, const EventSpan& events, int64_t t_begin,
+                 int64_t t_end, const AccumulateSettings& s) {
   char stem[32];
   std::snprintf(stem, sizeof(stem), "%06zu", index);
   const std::string base = dir + "/" + stem;
@@ -82,7 +81,8 @@ void writeWindow(const std::string& dir, size_t index, const EventSpan& events, 
   if (!cv::imwrite(base + ".png", png)) throwInFile(base + ".png", "cannot write image");
   if (s.npy) {
     if (planes.size() == 1) {
-      writeNpy(base + ".npy", planes[0].ptr<float>(), {static_cast<size_t>(planes[0].rows), static_cast<size_t>(planes[0].cols)});
+      writeNpy(base + ".npy", planes[0].ptr<float>(),
+               {static_cast<size_t>(planes[0].rows), static_cast<size_t>(planes[0].cols)});
     } else {
       writeNpy(base + ".npy", planes);
     }
@@ -100,18 +100,20 @@ int runAccumulate(const Args& args) {
       "timesurface (ON, OFF), voxel (bins x H x W)")(
       "window", po::value<std::string>(), "window length: 10ms, 250us, 0.5s (default 10ms)")(
       "count", po::value<size_t>(), "window of N events instead of a duration")(
-      "start", po::value<std::string>(), "first window starts here (µs, 1.5s, or +10ms from the first event)")(
+      "start", po::value<std::string>(),
+      "first window starts here (µs, 1.5s, or +10ms from the first event)")(
       "end", po::value<std::string>(), "ignore events from here on")(
       "max-windows", po::value<size_t>()->default_value(1000), "stop after this many windows")(
       "bins", po::value<int>()->default_value(5), "voxel: temporal bins")(
       "tau", po::value<std::string>()->default_value("10ms"), "timesurface: decay constant")(
       "contrast", po::value<std::string>(), "frame: C_on,C_off multipliers (e.g. 0.2,0.25)")(
-      "no-npy", po::bool_switch(), "write only the PNGs")(
-      "format", po::value<std::string>(), "input format; default: from the name");
+      "no-npy", po::bool_switch(), "write only the PNGs")("format", po::value<std::string>(),
+                                                          "input format; default: from the name");
   po::positional_options_description pos;
   pos.add("input", 1);
   po::variables_map vm;
-  if (!parseArgs(args, "usage: evkit accumulate IN --out DIR [--repr R] [--window D | --count N]", opts, pos, vm)) {
+  if (!parseArgs(args, "usage: evkit accumulate IN --out DIR [--repr R] [--window D | --count N]",
+                 opts, pos, vm)) {
     return kExitOk;
   }
   AccumulateSettings s;
@@ -124,13 +126,18 @@ int runAccumulate(const Args& args) {
     const auto [on, off] = parseNumberPair(vm["contrast"].as<std::string>(), "contrast");
     s.c_on = static_cast<float>(on);
     s.c_off = static_cast<float>(off);
-    if (!(s.c_on > 0) || !(s.c_off > 0)) throw UsageError("--contrast: thresholds must be positive");
+    if (!(s.c_on > 0) || !(s.c_off > 0))
+      throw UsageError("--contrast: thresholds must be positive");
   }
-  if (vm.count("window") && vm.count("count")) throw UsageError("give --window or --count, not both");
+  if (vm.count("window") && vm.count("count"))
+    throw UsageError("give --window or --count, not both");
   const bool by_count = vm.count("count") > 0;
   const size_t count = by_count ? vm["count"].as<size_t>() : 0;
   if (by_count && count == 0) throw UsageError("--count: expected a positive number");
-  const int64_t window = by_count ? 0 : parseDuration(vm.count("window") ? vm["window"].as<std::string>() : "10ms", "window");
+  const int64_t window =
+      by_count
+          ? 0
+          : parseDuration(vm.count("window") ? vm["window"].as<std::string>() : "10ms", "window");
   const size_t max_windows = vm["max-windows"].as<size_t>();
 
   const std::string in = vm["input"].as<std::string>();
@@ -158,7 +165,8 @@ int runAccumulate(const Args& args) {
   std::ofstream csv(out_dir.temporaryPath() + "/windows.csv");
   csv << "index,t_begin_us,t_end_us,events\n";
 
-  EventSlicer slicer = by_count ? EventSlicer::byCount(count, sensor) : EventSlicer::byTime(window, sensor);
+  EventSlicer slicer =
+      by_count ? EventSlicer::byCount(count, sensor) : EventSlicer::byTime(window, sensor);
   const auto write = [&](const EventSlicer::Window& w) {
     writeWindow(out_dir.temporaryPath(), w.index, w.events, w.t_begin, w.t_end, s);
     csv << w.index << ',' << w.t_begin << ',' << w.t_end << ',' << w.events.size() << '\n';
@@ -172,7 +180,9 @@ int runAccumulate(const Args& args) {
     const EventStore& ev = chunk.events;
     if (!ev.empty() && !started) {
       // --start and --end may be relative to the first event.
-      const auto resolve = [&](const TimeValue& v) { return v.relative ? ev.t.front() + v.us : v.us; };
+      const auto resolve = [&](const TimeValue& v) {
+        return v.relative ? ev.t.front() + v.us : v.us;
+      };
       if (start) slicer.setOrigin(resolve(*start));
       if (end) slicer.setEnd(resolve(*end));
       started = true;

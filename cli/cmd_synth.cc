@@ -15,30 +15,40 @@ using namespace evkit::synth;
 
 int runSynth(const Args& args) {
   po::options_description opts("options");
-  opts.add_options()("preset", po::value<std::string>(), "planes, box, rgbd, ground, text or plain")(
+  opts.add_options()("preset", po::value<std::string>(),
+                     "planes, box, rgbd, ground, text or plain")(
       "scene", po::value<std::string>(), "scene description file (YAML or JSON; see the README)")(
-      "suite", po::value<std::string>(), "a named suite into OUT/<name>: standard (5 scenes x blur 15 and 40 px, noiseless events), noisy (the same with DAVIS-like event noise), hard (9 hard cases), all")(
+      "suite", po::value<std::string>(),
+      "a named suite into OUT/<name>: standard (5 scenes x blur 15 and 40 px, noiseless events), "
+      "noisy (the same with DAVIS-like event noise), hard (9 hard cases), all")(
       "out", po::value<std::string>()->required(), "output folder")(
       "size", po::value<std::string>()->default_value("346x260"), "image size WxH")(
-      "blur-px", po::value<double>()->default_value(30), "blur length: the longest image path of a point (px)")(
+      "blur-px", po::value<double>()->default_value(30),
+      "blur length: the longest image path of a point (px)")(
       "exposure-us", po::value<int64_t>()->default_value(100000), "exposure time (µs)")(
-      "start-us", po::value<int64_t>()->default_value(1'600'000'000'000'000), "exposure start (absolute µs)")(
-      "seed", po::value<uint64_t>()->default_value(1), "seed of the camera shake and textures")(
+      "start-us", po::value<int64_t>()->default_value(1'600'000'000'000'000),
+      "exposure start (absolute µs)")("seed", po::value<uint64_t>()->default_value(1),
+                                      "seed of the camera shake and textures")(
       "colour", po::bool_switch(), "colour scene and frames")(
       "contrast", po::value<double>()->default_value(0.2), "event threshold C (log units)")(
       "sigma", po::value<double>()->default_value(0.0), "threshold mismatch")(
-      "shot-noise-hz", po::value<double>()->default_value(0.0), "shot noise events per pixel per second")(
-      "leak-hz", po::value<double>()->default_value(0.0), "leak events per pixel per second")(
-      "gain", po::value<double>()->default_value(1.0), "radiance scale (< 1 dark, > 1 saturated highlights; frames clip at 1)")(
+      "shot-noise-hz", po::value<double>()->default_value(0.0),
+      "shot noise events per pixel per second")("leak-hz", po::value<double>()->default_value(0.0),
+                                                "leak events per pixel per second")(
+      "gain", po::value<double>()->default_value(1.0),
+      "radiance scale (< 1 dark, > 1 saturated highlights; frames clip at 1)")(
       "drop-events", po::bool_switch(), "write no events (an exposure whose events were lost)")(
       "supersample", po::value<int>()->default_value(2), "rays per pixel per side (anti-aliasing)")(
       "image", po::value<std::string>(), "rgbd preset: colour image")(
       "depth", po::value<std::string>(), "rgbd preset: depth map (16-bit PNG)")(
-      "depth-scale", po::value<double>()->default_value(0.001), "rgbd preset: depth file units to metres");
+      "depth-scale", po::value<double>()->default_value(0.001),
+      "rgbd preset: depth file units to metres");
   po::positional_options_description pos;
   po::variables_map vm;
-  if (!parseArgs(args, "usage: evkit synth (--preset NAME | --scene FILE | --suite NAME) --out DIR [--blur-px PX] [--size WxH]", opts, pos,
-                 vm)) {
+  if (!parseArgs(args,
+                 "usage: evkit synth (--preset NAME | --scene FILE | --suite NAME) --out DIR "
+                 "[--blur-px PX] [--size WxH]",
+                 opts, pos, vm)) {
     return kExitOk;
   }
   const int sources = static_cast<int>(vm.count("preset") + vm.count("scene") + vm.count("suite"));
@@ -57,10 +67,13 @@ int runSynth(const Args& args) {
   o.drop_events = vm["drop-events"].as<bool>();
   o.simulator.seed = o.shake.seed;
   o.supersample = vm["supersample"].as<int>();
-  if (!(o.shake.blur_px > 0) || o.exposure_us <= 0 || !(o.simulator.contrast_pos > 0) || o.supersample < 1 || !(o.gain > 0)) {
-    throw UsageError("--blur-px, --exposure-us, --contrast, --gain and --supersample must be positive");
+  if (!(o.shake.blur_px > 0) || o.exposure_us <= 0 || !(o.simulator.contrast_pos > 0) ||
+      o.supersample < 1 || !(o.gain > 0)) {
+    throw UsageError(
+        "--blur-px, --exposure-us, --contrast, --gain and --supersample must be positive");
   }
-  if (!(o.simulator.sigma >= 0) || !(o.simulator.shot_noise_rate_hz >= 0) || !(o.simulator.leak_rate_hz >= 0)) {
+  if (!(o.simulator.sigma >= 0) || !(o.simulator.shot_noise_rate_hz >= 0) ||
+      !(o.simulator.leak_rate_hz >= 0)) {
     throw UsageError("--sigma, --shot-noise-hz and --leak-hz must not be negative");
   }
   SceneOptions so;
@@ -71,12 +84,15 @@ int runSynth(const Args& args) {
   so.rgbd_depth_scale = vm["depth-scale"].as<double>();
   const std::string out = vm["out"].as<std::string>();
 
-  const auto one = [](const Scene& scene, const SynthOptions& options, const std::string& dir, const std::string& name) {
+  const auto one = [](const Scene& scene, const SynthOptions& options, const std::string& dir,
+                      const std::string& name) {
     const auto start = std::chrono::steady_clock::now();
     const SynthReport r = writeObservation(scene, options, dir);
-    const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    std::fprintf(stderr, "%-18s blur %5.1f px  %9s events  %5lld renders  %5.1f s  -> %s\n", name.c_str(), r.blur_px,
-                 withThousands(r.events).c_str(), static_cast<long long>(r.renders), s, dir.c_str());
+    const double s =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    std::fprintf(stderr, "%-18s blur %5.1f px  %9s events  %5lld renders  %5.1f s  -> %s\n",
+                 name.c_str(), r.blur_px, withThousands(r.events).c_str(),
+                 static_cast<long long>(r.renders), s, dir.c_str());
   };
   if (vm.count("suite")) {
     std::vector<SuiteEntry> entries;
@@ -97,7 +113,8 @@ int runSynth(const Args& args) {
     try {
       scene = makePreset(vm["preset"].as<std::string>(), so);
     } catch (const Error& e) {
-      if (std::string(e.what()).rfind("unknown preset", 0) == 0) throw UsageError(std::string("--preset: ") + e.what());
+      if (std::string(e.what()).rfind("unknown preset", 0) == 0)
+        throw UsageError(std::string("--preset: ") + e.what());
       throw;
     }
     one(scene, o, out, vm["preset"].as<std::string>());

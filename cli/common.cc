@@ -8,7 +8,6 @@
 #include <iostream>
 
 #include "evkit/base/error.h"
-
 #include "evkit/events/decimal.h"
 
 namespace evkit::cli {
@@ -33,7 +32,8 @@ bool parseArgs(const Args& args, const std::string& usage, const po::options_des
 
 int64_t parseDuration(const std::string& text, const std::string& option) {
   const TimeValue v = parseTimeValue(text, option);
-  if (v.relative || v.us <= 0) throw UsageError("--" + option + ": expected a positive duration, got '" + text + "'");
+  if (v.relative || v.us <= 0)
+    throw UsageError("--" + option + ": expected a positive duration, got '" + text + "'");
   return v.us;
 }
 
@@ -69,8 +69,8 @@ TimeValue parseTimeValue(const std::string& text, const std::string& option) {
     const std::string scaled = number + (scale_down == 1000 ? "e-3" : "e-6");
     const char* q = scaled.data();
     const char* qend = q + scaled.size();
-    ok = number.find_first_of("eE") == std::string::npos && parseSecondsAsMicros(q, qend, value.us) &&
-         q == qend;
+    ok = number.find_first_of("eE") == std::string::npos &&
+         parseSecondsAsMicros(q, qend, value.us) && q == qend;
   }
   if (!ok || number.empty()) {
     throw UsageError("--" + option + ": cannot read the time '" + text +
@@ -91,7 +91,8 @@ std::pair<double, double> parseNumberPair(const std::string& text, const std::st
     if (used_b != rest.size()) throw std::invalid_argument(text);
     return {a, b};
   } catch (const std::exception&) {
-    throw UsageError("--" + option + ": expected a number or two separated by a comma, got '" + text + "'");
+    throw UsageError("--" + option + ": expected a number or two separated by a comma, got '" +
+                     text + "'");
   }
 }
 
@@ -174,9 +175,11 @@ std::vector<std::string> splitList(const std::string& list) {
   return out;
 }
 
-std::pair<int, int> parseImageSize(const std::string& text, const std::string& option, int min_side, int max_side) {
+std::pair<int, int> parseImageSize(const std::string& text, const std::string& option, int min_side,
+                                   int max_side) {
   int w = 0, h = 0;
-  if (std::sscanf(text.c_str(), "%dx%d", &w, &h) != 2 || w < min_side || h < min_side || w > max_side || h > max_side) {
+  if (std::sscanf(text.c_str(), "%dx%d", &w, &h) != 2 || w < min_side || h < min_side ||
+      w > max_side || h > max_side) {
     throw UsageError("--" + option + ": expected WxH, e.g. 346x260");
   }
   return {w, h};

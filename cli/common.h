@@ -1,14 +1,13 @@
 // Shared pieces of the evkit subcommands: option parsing, time values, progress, exit codes.
 #pragma once
 
+#include <boost/program_options.hpp>
 #include <chrono>
 #include <cstdint>
 #include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
-
-#include <boost/program_options.hpp>
 
 #include "evkit/events/io.h"
 
@@ -36,8 +35,9 @@ bool parseArgs(const Args& args, const std::string& usage, const po::options_des
 
 // Durations: "250us", "10ms", "1.5s", or a bare integer in µs. Exact (no floating point).
 int64_t parseDuration(const std::string& text, const std::string& option);
-// Instants: an absolute time in µs ("1605537493718345", or with a unit "1605537493.7s"), or relative
-// to the first event with a leading '+' ("+10ms"). Returns the value and whether it is relative.
+// Instants: an absolute time in µs ("1605537493718345", or with a unit "1605537493.7s"), or
+// relative to the first event with a leading '+' ("+10ms"). Returns the value and whether it is
+// relative.
 struct TimeValue {
   int64_t us = 0;
   bool relative = false;
@@ -52,7 +52,8 @@ std::optional<Format> optionalFormat(const po::variables_map& vm, const std::str
 // "a,b,,c" -> {"a", "b", "c"}.
 std::vector<std::string> splitList(const std::string& list);
 // "346x260" -> {346, 260}, each side in [min_side, max_side]; throws UsageError naming the option.
-std::pair<int, int> parseImageSize(const std::string& text, const std::string& option, int min_side, int max_side);
+std::pair<int, int> parseImageSize(const std::string& text, const std::string& option, int min_side,
+                                   int max_side);
 // v with `decimals` decimals, or "-" when it is not finite (a table cell).
 std::string fixedOrDash(double v, int decimals);
 

@@ -18,7 +18,7 @@ struct MethodReport {
   // Against the ground-truth frame at mid-exposure (NaN without one); BRISQUE of the mid frame.
   double psnr_mid = std::nan(""), ssim_mid = std::nan(""), brisque_mid = std::nan("");
   double psnr_mean = std::nan(""), ssim_mean = std::nan("");  // over every gt time
-  cv::Mat mid;  // the frame at mid-exposure
+  cv::Mat mid;                                                // the frame at mid-exposure
 };
 
 // Adds the ground truth's times to the request (so that metrics exist) and the middle.
@@ -35,7 +35,8 @@ Method makeMethod(const std::string& name, const MethodSettings& settings);
 
 // Runs the method and, when out_dir is not empty, writes <t_us>.png (linear, the input's bit
 // depth), latent.avi (sRGB-encoded for viewing), trajectory.txt (TUM) and summary.json into it.
-MethodReport runMethod(const Observation& obs, const Method& method, const DeblurRequest& request, const std::string& out_dir);
+MethodReport runMethod(const Observation& obs, const Method& method, const DeblurRequest& request,
+                       const std::string& out_dir);
 
 std::string frameName(int64_t t_us);
 
@@ -44,6 +45,7 @@ std::string frameName(int64_t t_us);
 // An 8-bit image (as cv::imwrite takes it) that appears complete or not at all.
 void writeImageAtomically(const std::string& path, const cv::Mat& image);
 
-void writeSideBySide(const std::string& path, const Observation& obs, const std::vector<MethodReport>& reports);
+void writeSideBySide(const std::string& path, const Observation& obs,
+                     const std::vector<MethodReport>& reports);
 
 }  // namespace evkit::cli

@@ -4,9 +4,8 @@
 #include <exception>
 #include <iostream>
 #include <map>
-#include <string>
-
 #include <opencv2/core/utils/logger.hpp>
+#include <string>
 
 #include "common.h"
 #include "evkit/base/error.h"
@@ -22,26 +21,50 @@ struct Command {
 
 const std::map<std::string, Command>& commands() {
   static const std::map<std::string, Command> table = {
-      {"info", {evkit::cli::runInfo, "describe a recording: format, sensor, events, time span, frames"}},
-      {"convert", {evkit::cli::runConvert, "convert a recording between formats, optionally a time window"}},
-      {"accumulate", {evkit::cli::runAccumulate, "event frames, counts, time surfaces, voxel grids as PNG + .npy"}},
-      {"frames", {evkit::cli::runFrames, "export a recording's frames as PNGs plus frames.csv of exposure times"}},
-      {"simulate", {evkit::cli::runSimulate, "events and blurry frames from an image sequence or video (ESIM model)"}},
-      {"synth", {evkit::cli::runSynth, "synthetic blurry frame + events + ground truth (an observation folder), or a suite"}},
-      {"deblur", {evkit::cli::runDeblur, "sharp frames from a blurry frame and its events (blurry, edi, benerf)"}},
-      {"compare", {evkit::cli::runCompare, "run several deblurring methods on one observation: table + side-by-side PNG"}},
-      {"bench", {evkit::cli::runBench, "speed against error of every method and budget on a synthetic suite: csv, table, plot"}},
-      {"metrics", {evkit::cli::runMetrics, "PSNR and SSIM of an image against a reference, BRISQUE without one"}},
-      {"demo", {evkit::cli::runDemo, "the built-in default job: random recording -> formats -> info -> PNG"}},
+      {"info",
+       {evkit::cli::runInfo, "describe a recording: format, sensor, events, time span, frames"}},
+      {"convert",
+       {evkit::cli::runConvert, "convert a recording between formats, optionally a time window"}},
+      {"accumulate",
+       {evkit::cli::runAccumulate,
+        "event frames, counts, time surfaces, voxel grids as PNG + .npy"}},
+      {"frames",
+       {evkit::cli::runFrames,
+        "export a recording's frames as PNGs plus frames.csv of exposure times"}},
+      {"simulate",
+       {evkit::cli::runSimulate,
+        "events and blurry frames from an image sequence or video (ESIM model)"}},
+      {"synth",
+       {evkit::cli::runSynth,
+        "synthetic blurry frame + events + ground truth (an observation folder), or a suite"}},
+      {"deblur",
+       {evkit::cli::runDeblur,
+        "sharp frames from a blurry frame and its events (blurry, edi, benerf)"}},
+      {"compare",
+       {evkit::cli::runCompare,
+        "run several deblurring methods on one observation: table + side-by-side PNG"}},
+      {"bench",
+       {evkit::cli::runBench,
+        "speed against error of every method and budget on a synthetic suite: csv, table, plot"}},
+      {"metrics",
+       {evkit::cli::runMetrics,
+        "PSNR and SSIM of an image against a reference, BRISQUE without one"}},
+      {"demo",
+       {evkit::cli::runDemo,
+        "the built-in default job: random recording -> formats -> info -> PNG"}},
   };
   return table;
 }
 
 void printUsage() {
-  std::cout << "evkit " << "0.1.0" << " — a toolkit for event cameras\n\n"
-            << "usage: evkit <command> [options]   (evkit <command> --help for its options)\n\ncommands:\n";
+  std::cout << "evkit "
+            << "0.1.0"
+            << " — a toolkit for event cameras\n\n"
+            << "usage: evkit <command> [options]   (evkit <command> --help for its "
+               "options)\n\ncommands:\n";
   for (const auto& [name, cmd] : commands()) std::printf("  %-11s %s\n", name.c_str(), cmd.summary);
-  std::cout << "\nexit codes: 0 success, 1 bad input or failed output, 2 bad command line, 3 internal error\n";
+  std::cout << "\nexit codes: 0 success, 1 bad input or failed output, 2 bad command line, 3 "
+               "internal error\n";
 }
 
 }  // namespace

@@ -1,17 +1,19 @@
 // expectJacobianNear: an analytic Jacobian against central differences, printing both on failure.
 #pragma once
 
+#include <gtest/gtest.h>
+
 #include <Eigen/Core>
 #include <functional>
 #include <string>
 
-#include <gtest/gtest.h>
-
 namespace evkit::test {
 
-// Central differences of f at x0 with step eps: column k = (f(x0 + eps e_k) - f(x0 - eps e_k)) / 2eps.
-inline Eigen::MatrixXd centralDifferences(const std::function<Eigen::VectorXd(const Eigen::VectorXd&)>& f,
-                                          const Eigen::VectorXd& x0, double eps) {
+// Central differences of f at x0 with step eps: column k = (f(x0 + eps e_k) - f(x0 - eps e_k)) /
+// 2eps.
+inline Eigen::MatrixXd centralDifferences(
+    const std::function<Eigen::VectorXd(const Eigen::VectorXd&)>& f, const Eigen::VectorXd& x0,
+    double eps) {
   const Eigen::VectorXd y0 = f(x0);
   Eigen::MatrixXd J(y0.size(), x0.size());
   for (Eigen::Index k = 0; k < x0.size(); ++k) {

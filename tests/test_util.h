@@ -1,6 +1,7 @@
 // Helpers shared by the test suites: scratch folders, running the evkit binary, fixtures.
 #pragma once
 
+#include <gtest/gtest.h>
 #include <sys/wait.h>
 
 #include <array>
@@ -10,8 +11,6 @@
 #include <random>
 #include <sstream>
 #include <string>
-
-#include <gtest/gtest.h>
 
 namespace evkit::test {
 
@@ -59,7 +58,8 @@ struct RunResult {
 inline RunResult runEvkit(const std::string& args, const ScratchDir& dir) {
   const std::string out_path = dir / "stdout.log";
   const std::string err_path = dir / "stderr.log";
-  const std::string command = std::string(EVKIT_BINARY) + " " + args + " >" + out_path + " 2>" + err_path + " </dev/null";
+  const std::string command =
+      std::string(EVKIT_BINARY) + " " + args + " >" + out_path + " 2>" + err_path + " </dev/null";
   const int status = std::system(command.c_str());
   RunResult r;
   r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);

@@ -15,8 +15,10 @@ constexpr char kCheckpointMagic[8] = {'E', 'V', 'K', 'B', 'N', 'R', 'F', '1'};
 
 }  // namespace
 
-void writeCheckpoint(const std::string& path, const Checkpoint& c, nerf::RadianceField<float>& field, const Trajectory& trajectory,
-                     const nerf::Adam<float>& field_adam, const nerf::Adam<double>& knot_adam, const std::mt19937_64& rng) {
+void writeCheckpoint(const std::string& path, const Checkpoint& c,
+                     nerf::RadianceField<float>& field, const Trajectory& trajectory,
+                     const nerf::Adam<float>& field_adam, const nerf::Adam<double>& knot_adam,
+                     const std::mt19937_64& rng) {
   const std::string tmp = path + ".partial";
   {
     std::ofstream out(tmp, std::ios::binary);
@@ -26,10 +28,13 @@ void writeCheckpoint(const std::string& path, const Checkpoint& c, nerf::Radianc
     for (const nerf::ParameterBlock<float>& b : field.parameters()) {
       const uint64_t n = b.size;
       out.write(reinterpret_cast<const char*>(&n), sizeof(n));
-      out.write(reinterpret_cast<const char*>(b.values), static_cast<std::streamsize>(b.size * sizeof(float)));
+      out.write(reinterpret_cast<const char*>(b.values),
+                static_cast<std::streamsize>(b.size * sizeof(float)));
     }
     for (const SE3& k : trajectory.knots()) {
-      const double v[7] = {k.rotation().w(), k.rotation().x(), k.rotation().y(), k.rotation().z(), k.translation().x(), k.translation().y(), k.translation().z()};
+      const double v[7] = {k.rotation().w(),   k.rotation().x(),    k.rotation().y(),
+                           k.rotation().z(),   k.translation().x(), k.translation().y(),
+                           k.translation().z()};
       out.write(reinterpret_cast<const char*>(v), sizeof(v));
     }
     field_adam.save(out);
@@ -45,20 +50,25 @@ void writeCheckpoint(const std::string& path, const Checkpoint& c, nerf::Radianc
   std::filesystem::rename(tmp, path);
 }
 
-Checkpoint readCheckpoint(const std::string& path, nerf::RadianceField<float>& field, Trajectory& trajectory, nerf::Adam<float>& field_adam,
+Checkpoint readCheckpoint(const std::string& path, nerf::RadianceField<float>& field,
+                          Trajectory& trajectory, nerf::Adam<float>& field_adam,
                           nerf::Adam<double>& knot_adam, std::mt19937_64& rng) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw Error(path + ": cannot open the checkpoint");
   char magic[8];
   in.read(magic, sizeof(magic));
-  if (!in || !std::equal(magic, magic + 8, kCheckpointMagic)) throw Error(path + ": not an evkit BeNeRF checkpoint");
+  if (!in || !std::equal(magic, magic + 8, kCheckpointMagic))
+    throw Error(path + ": not an evkit BeNeRF checkpoint");
   Checkpoint c;
   in.read(reinterpret_cast<char*>(&c), sizeof(c));
   for (const nerf::ParameterBlock<float>& b : field.parameters()) {
     uint64_t n = 0;
     in.read(reinterpret_cast<char*>(&n), sizeof(n));
-    if (!in || n != b.size) throw Error(path + ": the checkpoint's field does not match these settings (byte " + std::to_string(static_cast<long long>(in.tellg())) + ")");
-    in.read(reinterpret_cast<char*>(b.values), static_cast<std::streamsize>(b.size * sizeof(float)));
+    if (!in || n != b.size)
+      throw Error(path + ": the checkpoint's field does not match these settings (byte " +
+                  std::to_string(static_cast<long long>(in.tellg())) + ")");
+    in.read(reinterpret_cast<char*>(b.values),
+            static_cast<std::streamsize>(b.size * sizeof(float)));
   }
   for (SE3& k : trajectory.knots()) {
     double v[7];

@@ -2,9 +2,7 @@
 #pragma once
 
 #include <chrono>
-
 #include <opencv2/core.hpp>
-
 
 namespace evkit::benerf_detail {
 

@@ -4,7 +4,6 @@
 #include <algorithm>
 #include <cmath>
 #include <numbers>
-
 #include <opencv2/imgproc.hpp>
 
 #include "evkit/deblur/benerf.h"
@@ -15,7 +14,9 @@ namespace evkit {
 
 double measureBlurLength(const Observation& obs) { return measureBlur(obs, obs.contrast).blur_px; }
 
-BlurMeasurement measureBlur(const Observation& obs, const std::optional<std::pair<double, double>>& contrast, const LogMapping& log) {
+BlurMeasurement measureBlur(const Observation& obs,
+                            const std::optional<std::pair<double, double>>& contrast,
+                            const LogMapping& log) {
   EdiOptions edi_options;
   edi_options.use_observation_contrast = false;
   if (contrast) {
@@ -31,20 +32,24 @@ BlurMeasurement measureBlur(const Observation& obs, const std::optional<std::pai
   m.c_off = r.parameters.at("contrast_off");
   m.searched = r.parameters.at("contrast_searched") != 0;
   const double margin = 0.01 * (edi_options.search_max - edi_options.search_min);
-  m.inside = m.searched && m.c_on > edi_options.search_min + margin && m.c_on < edi_options.search_max - margin;
+  m.inside = m.searched && m.c_on > edi_options.search_min + margin &&
+             m.c_on < edi_options.search_max - margin;
   const cv::Mat grey = toGrey(r.frames.front().image);  // frames are float32
   cv::Mat L(grey.size(), CV_32F);
   for (int y = 0; y < grey.rows; ++y) {
-    for (int x = 0; x < grey.cols; ++x) L.at<float>(y, x) = log.toLog(std::max(grey.at<float>(y, x), 0.0f));
+    for (int x = 0; x < grey.cols; ++x)
+      L.at<float>(y, x) = log.toLog(std::max(grey.at<float>(y, x), 0.0f));
   }
   double gradient = 0;
   for (int y = 1; y + 1 < L.rows; ++y) {
     for (int x = 1; x + 1 < L.cols; ++x) {
-      const double gx = 0.5 * (L.at<float>(y, x + 1) - L.at<float>(y, x - 1)), gy = 0.5 * (L.at<float>(y + 1, x) - L.at<float>(y - 1, x));
+      const double gx = 0.5 * (L.at<float>(y, x + 1) - L.at<float>(y, x - 1)),
+                   gy = 0.5 * (L.at<float>(y + 1, x) - L.at<float>(y - 1, x));
       gradient += std::hypot(gx, gy);
     }
   }
-  const EventSpan ev = obs.events.sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us + 1);
+  const EventSpan ev =
+      obs.events.sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us + 1);
   double variation = 0;
   for (size_t i = 0; i < ev.size(); ++i) variation += ev.p[i] > 0 ? m.c_on : m.c_off;
   m.blur_px = gradient > 0 ? variation / (2.0 / std::numbers::pi * gradient) : 0.0;
@@ -62,10 +67,14 @@ namespace {
 // times about mid-exposure, voted bilinearly at their warped pixel.
 class WarpedEventImage {
  public:
-  WarpedEventImage(const Observation& obs, const nerf::PinholeCamera& camera, size_t max_events) : camera_(camera) {
-    const EventSpan ev = obs.events.sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us + 1);
-    const double t_mid = 0.5 * static_cast<double>(obs.blurry.exposure_start_us + obs.blurry.exposure_end_us);
-    const double length = std::max<double>(1, static_cast<double>(obs.blurry.exposure_end_us - obs.blurry.exposure_start_us));
+  WarpedEventImage(const Observation& obs, const nerf::PinholeCamera& camera, size_t max_events)
+      : camera_(camera) {
+    const EventSpan ev =
+        obs.events.sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us + 1);
+    const double t_mid =
+        0.5 * static_cast<double>(obs.blurry.exposure_start_us + obs.blurry.exposure_end_us);
+    const double length = std::max<double>(
+        1, static_cast<double>(obs.blurry.exposure_end_us - obs.blurry.exposure_start_us));
     const size_t stride = std::max<size_t>(1, ev.size() / std::max<size_t>(1, max_events));
     for (size_t i = 0; i < ev.size(); i += stride) {
       if (ev.x[i] >= camera.width || ev.y[i] >= camera.height) continue;
@@ -85,7 +94,8 @@ class WarpedEventImage {
       const Vector3& b = bearings_[i];
       const Vector3 d = b + tau_[i] * omega.cross(b);
       if (d.z() <= 0) continue;
-      const double u = camera_.fx * d.x() / d.z() + camera_.cx, v = camera_.fy * d.y() / d.z() + camera_.cy;
+      const double u = camera_.fx * d.x() / d.z() + camera_.cx,
+                   v = camera_.fy * d.y() / d.z() + camera_.cy;
       if (!(u >= 0 && v >= 0 && u < W - 1 && v < H - 1)) continue;  // also NaN
       const int x0 = static_cast<int>(u), y0 = static_cast<int>(v);
       const float fx = static_cast<float>(u - x0), fy = static_cast<float>(v - y0);
@@ -111,7 +121,8 @@ class WarpedEventImage {
 
 }  // namespace
 
-Vector3 rotationFromEvents(const Observation& obs, const nerf::PinholeCamera& camera, double blur_px) {
+Vector3 rotationFromEvents(const Observation& obs, const nerf::PinholeCamera& camera,
+                           double blur_px) {
   WarpedEventImage iwe(obs, camera, 200000);
   Vector3 omega = Vector3::Zero();
   if (iwe.size() < 100 || !(camera.fx > 0)) return omega;
@@ -126,7 +137,8 @@ Vector3 rotationFromEvents(const Observation& obs, const nerf::PinholeCamera& ca
   double best = iwe.contrast(omega, 3.0);
   for (int k = 0; k < 8; ++k) {
     const double a = k * std::numbers::pi / 4;
-    const Vector3 candidate(first_px * std::cos(a) * unit.x(), first_px * std::sin(a) * unit.y(), 0);
+    const Vector3 candidate(first_px * std::cos(a) * unit.x(), first_px * std::sin(a) * unit.y(),
+                            0);
     const double c = iwe.contrast(candidate, 3.0);
     if (c > best) best = c, omega = candidate;
   }

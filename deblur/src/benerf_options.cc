@@ -13,7 +13,8 @@ namespace {
 int positiveInt(const std::string& key, const std::string& value, int min, int max) {
   const double v = settingNumber("benerf", key, value);
   if (v != std::floor(v) || v < min || v > max) {
-    throw Error("benerf: setting " + key + "=" + value + " must be an integer in [" + std::to_string(min) + ", " + std::to_string(max) + "]");
+    throw Error("benerf: setting " + key + "=" + value + " must be an integer in [" +
+                std::to_string(min) + ", " + std::to_string(max) + "]");
   }
   return static_cast<int>(v);
 }
@@ -36,13 +37,15 @@ BenerfOptions benerfBudget(const std::string& name) {
     o.iterations = 4000;
     o.hash.grid.log2_table = 17;
   } else {
-    throw Error("benerf: unknown budget '" + name + "' (known: fast, balanced, quality, Ns for seconds, N for iterations)");
+    throw Error("benerf: unknown budget '" + name +
+                "' (known: fast, balanced, quality, Ns for seconds, N for iterations)");
   }
   return o;
 }
 
 BenerfBudget parseBenerfBudget(const std::string& token) {
-  if (token == "fast" || token == "balanced" || token == "quality") return {token, benerfBudget(token)};
+  if (token == "fast" || token == "balanced" || token == "quality")
+    return {token, benerfBudget(token)};
   size_t used = 0;
   double value = 0;
   try {
@@ -51,7 +54,8 @@ BenerfBudget parseBenerfBudget(const std::string& token) {
     used = 0;
   }
   const std::string unit = token.substr(used);
-  const bool digits = !token.empty() && (std::isdigit(static_cast<unsigned char>(token[0])) != 0 || token[0] == '.');
+  const bool digits = !token.empty() &&
+                      (std::isdigit(static_cast<unsigned char>(token[0])) != 0 || token[0] == '.');
   if (digits && used > 0 && value > 0 && std::isfinite(value)) {
     if (unit == "s") {
       BenerfOptions o = benerfBudget("balanced");
@@ -65,7 +69,9 @@ BenerfBudget parseBenerfBudget(const std::string& token) {
       return {token + " it", o};
     }
   }
-  throw Error("benerf: budget '" + token + "' is not fast, balanced, quality, seconds (60s) or an iteration count of fast (250)");
+  throw Error(
+      "benerf: budget '" + token +
+      "' is not fast, balanced, quality, seconds (60s) or an iteration count of fast (250)");
 }
 
 const SettingsTable<BenerfOptions>& benerfSettings() {
@@ -75,72 +81,112 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
     SettingsTable<O> t("benerf");
     const SettingRange positive{0, INFINITY, true}, unit{0, 1}, unit_open{0, 1, true};
     const auto handled = [](O&, const std::string&) {};  // applied before the table (benerfOptions)
-    t.custom({"budget", "fast|balanced|quality|Ns|N", "fast, balanced, quality, seconds of wall time (60s) or iterations of fast (250)",
+    t.custom({"budget", "fast|balanced|quality|Ns|N",
+              "fast, balanced, quality, seconds of wall time (60s) or iterations of fast (250)",
               handled, [](const O&) {}, [](const O&) { return std::string("balanced"); }})
-        .custom({"preset", "synthetic|real", "the event term compared directly (synthetic) or normalised (real)", handled,
+        .custom({"preset", "synthetic|real",
+                 "the event term compared directly (synthetic) or normalised (real)", handled,
                  [](const O&) {}, [](const O&) { return std::string("none"); }})
-        .choice("field", &O::field, {{"hash", Field::kHash}, {"mlp", Field::kMlp}}, "the fast hash-grid field or the paper's 8 x 256 MLP")
+        .choice("field", &O::field, {{"hash", Field::kHash}, {"mlp", Field::kMlp}},
+                "the fast hash-grid field or the paper's 8 x 256 MLP")
         .integer("iterations", &O::iterations, {1}, "training steps")
-        .integer("views", &O::virtual_views, {0}, "virtual views of the blur term (0: from the measured blur length)")
+        .integer("views", &O::virtual_views, {0},
+                 "virtual views of the blur term (0: from the measured blur length)")
         .integer("knots", &O::knots, {2}, "trajectory knots")
         .choice("trajectory", &O::trajectory,
-                {{"cubic", TrajectoryKind::kCubicSE3}, {"split", TrajectoryKind::kCubicSplit}, {"linear", TrajectoryKind::kLinear}},
+                {{"cubic", TrajectoryKind::kCubicSE3},
+                 {"split", TrajectoryKind::kCubicSplit},
+                 {"linear", TrajectoryKind::kLinear}},
                 "the trajectory's spline")
         .choice("init", &O::init, {{"events", O::Init::kEvents}, {"identity", O::Init::kIdentity}},
                 "the knots' start: the rotation found from the events, or identity (the paper)")
         .number("alpha", &O::alpha, unit_open, "event window, a fraction of the exposure")
-        .number("beta", &O::beta, {}, "weight of the event term (< 0: by the event term's form: 0.1 direct, 2 per 1,024 event pixels normalised)")
+        .number("beta", &O::beta, {},
+                "weight of the event term (< 0: by the event term's form: 0.1 direct, 2 per 1,024 "
+                "event pixels normalised)")
         .choice("normalise", &O::event_form,
-                {{"auto", O::EventForm::kAuto}, {"1", O::EventForm::kNormalised}, {"0", O::EventForm::kDirect}},
-                "compare L2-normalised events and log changes (1), or directly with known thresholds (0)")
+                {{"auto", O::EventForm::kAuto},
+                 {"1", O::EventForm::kNormalised},
+                 {"0", O::EventForm::kDirect}},
+                "compare L2-normalised events and log changes (1), or directly with known "
+                "thresholds (0)")
         .custom({"contrast", "C[,C_off]", "the thresholds of the event term (over contrast.txt)",
                  [](O& o, const std::string& v) { o.contrast = contrastSetting("benerf", v); },
                  [](const O& o) {
-                   if (o.contrast && !(o.contrast->first > 0 && o.contrast->second > 0)) throw Error("benerf: contrast must be positive");
+                   if (o.contrast && !(o.contrast->first > 0 && o.contrast->second > 0))
+                     throw Error("benerf: contrast must be positive");
                  },
-                 [](const O& o) { return o.contrast ? shortNumber(o.contrast->first) + "," + shortNumber(o.contrast->second) : "none"; }})
-        .flag("estimate_contrast", &O::estimate_contrast, "without thresholds, take EDI's searched c when it lies inside its range")
-        .integer("windows", &O::windows, {1}, "event windows per step, the event pixels dealt among them")
-        .integer("prefit", &O::prefit, {0}, "steps fitting the field and knots to EDI's latent frames first")
-        .number("dim_frame", &O::dim_frame, unit, "mean brightness below which the blur term is weighed up")
+                 [](const O& o) {
+                   return o.contrast ? shortNumber(o.contrast->first) + "," +
+                                           shortNumber(o.contrast->second)
+                                     : "none";
+                 }})
+        .flag("estimate_contrast", &O::estimate_contrast,
+              "without thresholds, take EDI's searched c when it lies inside its range")
+        .integer("windows", &O::windows, {1},
+                 "event windows per step, the event pixels dealt among them")
+        .integer("prefit", &O::prefit, {0},
+                 "steps fitting the field and knots to EDI's latent frames first")
+        .number("dim_frame", &O::dim_frame, unit,
+                "mean brightness below which the blur term is weighed up")
         .custom({"rays", "integer", "blur_rays and event_rays at once",
                  [](O& o, const std::string& v) {
                    const double n = settingNumber("benerf", "rays", v);
-                   if (n != std::floor(n) || n < 1 || n > 1e9) throw Error("benerf: setting rays=" + v + " must be an integer >= 1");
+                   if (n != std::floor(n) || n < 1 || n > 1e9)
+                     throw Error("benerf: setting rays=" + v + " must be an integer >= 1");
                    o.blur_rays = o.event_rays = static_cast<int>(n);
                  },
                  [](const O&) {}, [](const O& o) { return std::to_string(o.blur_rays); }})
-        .integer("blur_rays", &O::blur_rays, {1}, "pixels of the blur term per step, split over the views")
-        .integer("event_rays", &O::event_rays, {0}, "pixels of the event term per step (two rays each)")
+        .integer("blur_rays", &O::blur_rays, {1},
+                 "pixels of the blur term per step, split over the views")
+        .integer("event_rays", &O::event_rays, {0},
+                 "pixels of the event term per step (two rays each)")
         .integer("samples", &O::samples, {2}, "stratified samples per ray")
         .custom({"levels", "integer", "hash-grid levels",
-                 [](O& o, const std::string& v) { o.hash.grid.levels = positiveInt("levels", v, 1, 32); }, [](const O&) {},
-                 [](const O& o) { return std::to_string(o.hash.grid.levels); }})
+                 [](O& o, const std::string& v) {
+                   o.hash.grid.levels = positiveInt("levels", v, 1, 32);
+                 },
+                 [](const O&) {}, [](const O& o) { return std::to_string(o.hash.grid.levels); }})
         .custom({"features", "integer", "features per hash-grid level",
-                 [](O& o, const std::string& v) { o.hash.grid.features = positiveInt("features", v, 1, 64); }, [](const O&) {},
-                 [](const O& o) { return std::to_string(o.hash.grid.features); }})
+                 [](O& o, const std::string& v) {
+                   o.hash.grid.features = positiveInt("features", v, 1, 64);
+                 },
+                 [](const O&) {}, [](const O& o) { return std::to_string(o.hash.grid.features); }})
         .custom({"table", "integer", "log2 of the hash table's entries per level",
-                 [](O& o, const std::string& v) { o.hash.grid.log2_table = positiveInt("table", v, 8, 24); }, [](const O&) {},
+                 [](O& o, const std::string& v) {
+                   o.hash.grid.log2_table = positiveInt("table", v, 8, 24);
+                 },
+                 [](const O&) {},
                  [](const O& o) { return std::to_string(o.hash.grid.log2_table); }})
-        .integer("resolution", &O::finest_resolution, {0}, "the finest grid level's cells (0: the image's larger side)")
+        .integer("resolution", &O::finest_resolution, {0},
+                 "the finest grid level's cells (0: the image's larger side)")
         .number("depth_scale", &O::depth_scale, {0, 1, true}, "the field sees NDC depth times this")
-        .number("coarse_to_fine", &O::coarse_to_fine, unit, "fraction of the steps over which the field's bands open")
-        .number("field_lr", &O::field_lr, positive, "the field's learning rate (the MLP's default: 5e-4)")
+        .number("coarse_to_fine", &O::coarse_to_fine, unit,
+                "fraction of the steps over which the field's bands open")
+        .number("field_lr", &O::field_lr, positive,
+                "the field's learning rate (the MLP's default: 5e-4)")
         .number("knot_lr", &O::knot_lr, positive, "the knots' learning rate")
         .number("lr_final", &O::lr_final, positive, "the fraction both learning rates decay to")
         .integer("seed", &O::seed, {0}, "random seed")
         .integer("threads", &O::threads, {0}, "OpenMP threads (0: OpenMP's default)")
-        .custom({"checkpoint", "path", "write a checkpoint here every checkpoint_every steps and at the end",
-                 [](O& o, const std::string& v) { o.checkpoint = v; }, [](const O&) {},
-                 [](const O& o) { return o.checkpoint.empty() ? std::string("none") : o.checkpoint; }})
+        .custom(
+            {"checkpoint", "path",
+             "write a checkpoint here every checkpoint_every steps and at the end",
+             [](O& o, const std::string& v) { o.checkpoint = v; }, [](const O&) {},
+             [](const O& o) { return o.checkpoint.empty() ? std::string("none") : o.checkpoint; }})
         .integer("checkpoint_every", &O::checkpoint_every, {1}, "steps between checkpoints")
-        .custom({"resume", "path", "continue from this checkpoint (the same observation and settings)",
+        .custom({"resume", "path",
+                 "continue from this checkpoint (the same observation and settings)",
                  [](O& o, const std::string& v) { o.resume = v; }, [](const O&) {},
                  [](const O& o) { return o.resume.empty() ? std::string("none") : o.resume; }})
-        .integer("stop_after", &O::stop_after, {0}, "stop (after checkpointing) at this step; 0: never")
-        .custom({"lin_log", "0|1", "the log mapping's linear segment near black (as the simulator's)",
-                 [](O& o, const std::string& v) { o.log.lin_log = settingNumber("benerf", "lin_log", v) != 0; }, [](const O&) {},
-                 [](const O& o) { return std::string(o.log.lin_log ? "1" : "0"); }});
+        .integer("stop_after", &O::stop_after, {0},
+                 "stop (after checkpointing) at this step; 0: never")
+        .custom(
+            {"lin_log", "0|1", "the log mapping's linear segment near black (as the simulator's)",
+             [](O& o, const std::string& v) {
+               o.log.lin_log = settingNumber("benerf", "lin_log", v) != 0;
+             },
+             [](const O&) {}, [](const O& o) { return std::string(o.log.lin_log ? "1" : "0"); }});
     return t;
   }();
   return table;
@@ -151,7 +197,8 @@ void BenerfOptions::check() const { benerfSettings().check(*this); }
 BenerfOptions benerfOptions(const MethodSettings& settings) {
   // The budget first (it sets many keys), then the preset, then every other key over them.
   BenerfOptions o = benerfBudget("balanced");
-  if (const auto b = settings.find("budget"); b != settings.end()) o = parseBenerfBudget(b->second).options;
+  if (const auto b = settings.find("budget"); b != settings.end())
+    o = parseBenerfBudget(b->second).options;
   if (const auto p = settings.find("preset"); p != settings.end()) {
     if (p->second == "synthetic") {
       o.event_form = BenerfOptions::EventForm::kDirect;
@@ -164,9 +211,11 @@ BenerfOptions benerfOptions(const MethodSettings& settings) {
   MethodSettings rest = settings;
   rest.erase("budget");
   rest.erase("preset");
-  if (rest.count("budget_seconds") != 0) throw Error("benerf: unknown setting 'budget_seconds' (say budget=60s)");
+  if (rest.count("budget_seconds") != 0)
+    throw Error("benerf: unknown setting 'budget_seconds' (say budget=60s)");
   benerfSettings().apply(o, rest);
-  if (o.field == BenerfOptions::FieldKind::kMlp && !settings.count("field_lr")) o.field_lr = 5e-4;  // the paper's rate for its MLP
+  if (o.field == BenerfOptions::FieldKind::kMlp && !settings.count("field_lr"))
+    o.field_lr = 5e-4;  // the paper's rate for its MLP
   o.check();
   return o;
 }

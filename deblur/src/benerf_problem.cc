@@ -33,7 +33,8 @@ std::vector<SE3> initialKnots(int count, double spread, uint64_t seed) {
 // The hash grid's level scale so that the finest level has `finest` cells across [0, 1].
 nerf::HashFieldConfig adaptedHash(nerf::HashFieldConfig c, int finest) {
   if (c.grid.levels > 1 && finest > c.grid.base_resolution) {
-    c.grid.per_level_scale = std::pow(static_cast<double>(finest) / c.grid.base_resolution, 1.0 / (c.grid.levels - 1));
+    c.grid.per_level_scale =
+        std::pow(static_cast<double>(finest) / c.grid.base_resolution, 1.0 / (c.grid.levels - 1));
   }
   return c;
 }
@@ -41,20 +42,29 @@ nerf::HashFieldConfig adaptedHash(nerf::HashFieldConfig c, int finest) {
 }  // namespace
 
 template <typename T>
-BenerfProblem<T>::BenerfProblem(const Observation& obs, const BenerfOptions& options, int virtual_views)
+BenerfProblem<T>::BenerfProblem(const Observation& obs, const BenerfOptions& options,
+                                int virtual_views)
     : options_(options),
       camera_(obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows)),
       channels_(obs.blurry.image.channels()),
       views_(virtual_views),
       blurry_(toFloat(obs.blurry.image)),
-      trajectory_(options.trajectory, obs.blurry.exposure_start_us, obs.blurry.exposure_end_us,
-                  initialKnots(std::max(options.knots, Trajectory::minimumKnots(options.trajectory)), options.knot_init, options.seed)),
-      rays_options_{.samples = options.samples, .near = options.near, .depth_scale = options.depth_scale, .render = {}},
+      trajectory_(
+          options.trajectory, obs.blurry.exposure_start_us, obs.blurry.exposure_end_us,
+          initialKnots(std::max(options.knots, Trajectory::minimumKnots(options.trajectory)),
+                       options.knot_init, options.seed)),
+      rays_options_{.samples = options.samples,
+                    .near = options.near,
+                    .depth_scale = options.depth_scale,
+                    .render = {}},
       rays_(camera_, rays_options_) {
-  if (channels_ != 1 && channels_ != 3) throw Error("benerf: the blurry frame must be grey or colour, not " + std::to_string(channels_) + " channels");
+  if (channels_ != 1 && channels_ != 3)
+    throw Error("benerf: the blurry frame must be grey or colour, not " +
+                std::to_string(channels_) + " channels");
   if (views_ < 1) throw Error("benerf: need at least one virtual view");
   if (options.field == BenerfOptions::FieldKind::kHash) {
-    const int finest = options.finest_resolution > 0 ? options.finest_resolution : std::max(camera_.width, camera_.height);
+    const int finest = options.finest_resolution > 0 ? options.finest_resolution
+                                                     : std::max(camera_.width, camera_.height);
     field_ = nerf::makeHashField<T>(adaptedHash(options.hash, finest), channels_, options.seed);
   } else {
     field_ = nerf::makeMlpField<T>(options.mlp, channels_, options.seed);
@@ -68,22 +78,27 @@ BenerfProblem<T>::BenerfProblem(const Observation& obs, const BenerfOptions& opt
   // The presets are the paper's β at its 1,024 event pixels per step. The normalised term is a mean
   // over the batch of the squared differences of two unit vectors, so it shrinks as 1 / pixels:
   // its β grows with them to keep the same weight (the direct term is a plain mean and does not).
-  beta_ = options.beta >= 0 ? options.beta : (normalised_ ? 2.0 * std::max(1, options.event_rays) / 1024.0 : 0.1);
+  beta_ = options.beta >= 0 ? options.beta
+                            : (normalised_ ? 2.0 * std::max(1, options.event_rays) / 1024.0 : 0.1);
   // The blur term is in linear intensity and the event term in log intensity, so their balance
-  // shifts with the frame's brightness m as m^2: below options.dim_frame the blur term is weighed as
-  // if the frame were that bright.
+  // shifts with the frame's brightness m as m^2: below options.dim_frame the blur term is weighed
+  // as if the frame were that bright.
   const cv::Scalar mean = cv::mean(blurry_);
   double brightness = 0;
   for (int c = 0; c < channels_; ++c) brightness += mean[c] / channels_;
-  blur_weight_ = brightness < options.dim_frame ? std::pow(options.dim_frame / std::max(brightness, 1e-3), 2) : 1.0;
+  blur_weight_ = brightness < options.dim_frame
+                     ? std::pow(options.dim_frame / std::max(brightness, 1e-3), 2)
+                     : 1.0;
   // Events of the exposure by pixel, with the accumulated level after each.
-  events_ = PixelEventIndex(obs.events.sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us + 1), camera_.width,
-                            camera_.height);
+  events_ = PixelEventIndex(
+      obs.events.sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us + 1),
+      camera_.width, camera_.height);
   event_level_.resize(events_.size());
   for (size_t p = 0; p < static_cast<size_t>(camera_.width) * camera_.height; ++p) {
     double level = 0;
     for (uint32_t e = events_.begin(p); e < events_.end(p); ++e) {
-      level += events_.polarity()[e] > 0 ? (known_contrast_ ? c_on_ : 1.0) : -(known_contrast_ ? c_off_ : 1.0);
+      level += events_.polarity()[e] > 0 ? (known_contrast_ ? c_on_ : 1.0)
+                                         : -(known_contrast_ ? c_off_ : 1.0);
       event_level_[e] = level;
     }
   }
@@ -111,14 +126,17 @@ typename BenerfProblem<T>::Batch BenerfProblem<T>::sampleBatch(std::mt19937_64& 
   for (int i = 0; i < blur_pixels; ++i) b.blur_pixels.push_back(pixel(rng));
   for (int i = 0; i < options_.event_rays; ++i) b.event_pixels.push_back(pixel(rng));
   const int64_t t0 = trajectory_.beginUs(), t1 = trajectory_.endUs();
-  const int64_t length = std::max<int64_t>(1, static_cast<int64_t>(std::llround(options_.alpha * static_cast<double>(t1 - t0))));
+  const int64_t length = std::max<int64_t>(
+      1, static_cast<int64_t>(std::llround(options_.alpha * static_cast<double>(t1 - t0))));
   std::uniform_int_distribution<int64_t> begin(t0, std::max(t0, t1 - length));
-  const int windows = std::min(std::max(1, options_.windows), options_.event_rays);  // none without event pixels
+  const int windows =
+      std::min(std::max(1, options_.windows), options_.event_rays);  // none without event pixels
   for (int w = 0; w < windows; ++w) {
     b.window_begin.push_back(begin(rng));
     b.window_end.push_back(std::min(t1, b.window_begin.back() + length));
   }
-  const size_t rays = b.blur_pixels.size() * static_cast<size_t>(views_) + 2 * b.event_pixels.size();
+  const size_t rays =
+      b.blur_pixels.size() * static_cast<size_t>(views_) + 2 * b.event_pixels.size();
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
   b.jitter.resize(rays * static_cast<size_t>(options_.samples));
   for (float& j : b.jitter) j = u(rng);
@@ -126,21 +144,26 @@ typename BenerfProblem<T>::Batch BenerfProblem<T>::sampleBatch(std::mt19937_64& 
 }
 
 template <typename T>
-typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, Eigen::VectorXd* knot_gradient) {
+typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch,
+                                                           Eigen::VectorXd* knot_gradient) {
   const int V = views_, W = camera_.width;
-  const int Pb = static_cast<int>(batch.blur_pixels.size()), Pe = static_cast<int>(batch.event_pixels.size());
+  const int Pb = static_cast<int>(batch.blur_pixels.size()),
+            Pe = static_cast<int>(batch.event_pixels.size());
   // Poses: the V virtual views, then the ends of each event window; event pixel i has window
   // i mod windows.
   const int windows = static_cast<int>(batch.window_begin.size());
   std::vector<double> s(static_cast<size_t>(V + 2 * windows));
   for (int k = 0; k < V; ++k) s[static_cast<size_t>(k)] = viewTime(k);
   for (int w = 0; w < windows; ++w) {
-    s[static_cast<size_t>(V + 2 * w)] = trajectory_.normalizedTime(batch.window_begin[static_cast<size_t>(w)]);
-    s[static_cast<size_t>(V + 2 * w + 1)] = trajectory_.normalizedTime(batch.window_end[static_cast<size_t>(w)]);
+    s[static_cast<size_t>(V + 2 * w)] =
+        trajectory_.normalizedTime(batch.window_begin[static_cast<size_t>(w)]);
+    s[static_cast<size_t>(V + 2 * w + 1)] =
+        trajectory_.normalizedTime(batch.window_end[static_cast<size_t>(w)]);
   }
   std::vector<SE3> poses(s.size());
   std::vector<KnotJacobians> jacobians(s.size());
-  for (size_t k = 0; k < s.size(); ++k) poses[k] = trajectory_.evaluate(s[k], knot_gradient ? &jacobians[k] : nullptr);
+  for (size_t k = 0; k < s.size(); ++k)
+    poses[k] = trajectory_.evaluate(s[k], knot_gradient ? &jacobians[k] : nullptr);
   // The rays: each blur pixel from the V views, then each event pixel from its window's two ends.
   std::vector<typename nerf::RayBatch<T>::PixelRay> rays;
   rays.reserve(static_cast<size_t>(Pb * V + 2 * Pe));
@@ -157,7 +180,8 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
   rays_.forward(*field_, knot_gradient != nullptr);
 
   Loss loss;
-  std::vector<T> d_colour(static_cast<size_t>(rays_.size()) * 3, T(0));  // dL/d(rendered colour) per ray
+  std::vector<T> d_colour(static_cast<size_t>(rays_.size()) * 3,
+                          T(0));  // dL/d(rendered colour) per ray
   loss.blur = blurTerm(batch, d_colour);
   loss.event = eventTerm(batch, d_colour);
   loss.total = blur_weight_ * loss.blur + beta_ * loss.event;
@@ -168,7 +192,8 @@ typename BenerfProblem<T>::Loss BenerfProblem<T>::evaluate(const Batch& batch, E
   for (size_t k = 0; k < poses.size(); ++k) {
     const KnotJacobians& J = jacobians[k];
     for (int i = 0; i < J.count; ++i) {
-      knot_gradient->segment<6>(6 * (J.first_knot + i)) += J.d_pose_d_knot[static_cast<size_t>(i)].transpose() * pose_gradient[k];
+      knot_gradient->segment<6>(6 * (J.first_knot + i)) +=
+          J.d_pose_d_knot[static_cast<size_t>(i)].transpose() * pose_gradient[k];
     }
   }
   return loss;
@@ -189,7 +214,8 @@ double BenerfProblem<T>::blurTerm(const Batch& batch, std::vector<T>& d_colour) 
         for (int c = 0; c < C; ++c) {
           const T e = colour(i, k, c) - static_cast<T>(b[c]);
           term += static_cast<double>(e * e) / (Pb * C * V);
-          d_colour[static_cast<size_t>(i * V + k) * 3 + c] = static_cast<T>(2 * blur_weight_) * e / static_cast<T>(Pb * C * V);
+          d_colour[static_cast<size_t>(i * V + k) * 3 + c] =
+              static_cast<T>(2 * blur_weight_) * e / static_cast<T>(Pb * C * V);
         }
       }
       continue;
@@ -212,9 +238,11 @@ template <typename T>
 double BenerfProblem<T>::eventTerm(const Batch& batch, std::vector<T>& d_colour) const {
   // Accumulated events against the change of the log grey renders at the window's ends.
   const int C = channels_, first = static_cast<int>(batch.blur_pixels.size()) * views_;
-  const int Pe = static_cast<int>(batch.event_pixels.size()), windows = static_cast<int>(batch.window_begin.size());
+  const int Pe = static_cast<int>(batch.event_pixels.size()),
+            windows = static_cast<int>(batch.window_begin.size());
   if (Pe == 0) return 0;
-  std::vector<T> grey_a(static_cast<size_t>(Pe)), grey_b(static_cast<size_t>(Pe)), change(static_cast<size_t>(Pe));
+  std::vector<T> grey_a(static_cast<size_t>(Pe)), grey_b(static_cast<size_t>(Pe)),
+      change(static_cast<size_t>(Pe));
   std::vector<double> target(static_cast<size_t>(Pe));
   double target_norm2 = 0;
   T change_norm2 = 0;
@@ -223,7 +251,8 @@ double BenerfProblem<T>::eventTerm(const Batch& batch, std::vector<T>& d_colour)
     grey_a[n] = nerf::greyOf(rays_.render(first + 2 * i).colour, C);
     grey_b[n] = nerf::greyOf(rays_.render(first + 2 * i + 1).colour, C);
     change[n] = options_.log.logOf(grey_b[n]) - options_.log.logOf(grey_a[n]);
-    target[n] = accumulatedEvents(batch.event_pixels[n], batch.window_begin[static_cast<size_t>(i % windows)],
+    target[n] = accumulatedEvents(batch.event_pixels[n],
+                                  batch.window_begin[static_cast<size_t>(i % windows)],
                                   batch.window_end[static_cast<size_t>(i % windows)]);
     target_norm2 += target[n] * target[n];
     change_norm2 += change[n] * change[n];
@@ -244,7 +273,8 @@ double BenerfProblem<T>::eventTerm(const Batch& batch, std::vector<T>& d_colour)
       g[n] = T(2) * e / static_cast<T>(Pe);
       dot += change[n] * g[n];
     }
-    for (size_t n = 0; n < static_cast<size_t>(Pe); ++n) d_change[n] = g[n] / norm - change[n] * dot / (norm * norm * norm);
+    for (size_t n = 0; n < static_cast<size_t>(Pe); ++n)
+      d_change[n] = g[n] / norm - change[n] * dot / (norm * norm * norm);
   } else {
     for (size_t n = 0; n < static_cast<size_t>(Pe); ++n) {
       const T e = change[n] - static_cast<T>(target[n]);
@@ -264,9 +294,11 @@ double BenerfProblem<T>::eventTerm(const Batch& batch, std::vector<T>& d_colour)
 
 template <typename T>
 void BenerfProblem<T>::setViewTargets(std::vector<cv::Mat> targets) {
-  if (!targets.empty() && static_cast<int>(targets.size()) != views_) throw Error("benerf: one view target per virtual view");
+  if (!targets.empty() && static_cast<int>(targets.size()) != views_)
+    throw Error("benerf: one view target per virtual view");
   for (const cv::Mat& t : targets) {
-    if (t.type() != CV_MAKETYPE(CV_32F, channels_) || t.size() != blurry_.size()) throw Error("benerf: a view target must be float32 like the blurry frame");
+    if (t.type() != CV_MAKETYPE(CV_32F, channels_) || t.size() != blurry_.size())
+      throw Error("benerf: a view target must be float32 like the blurry frame");
   }
   view_targets_ = std::move(targets);
 }
@@ -308,9 +340,11 @@ cv::Mat BenerfProblem<T>::renderRows(int64_t t_us, cv::Mat* disparity, int H) {
       const int y = y0 + r / W, x = r % W;
       for (int c = 0; c < C; ++c) image.ptr<float>(y)[x * C + c] = static_cast<float>(f.colour[c]);
       if (disparity) {
-        // Expected NDC parameter, the background at t = 1 (infinity); NDC z = 2t - 1 = 1 - 2 near / z.
+        // Expected NDC parameter, the background at t = 1 (infinity); NDC z = 2t - 1 = 1 - 2 near /
+        // z.
         const double t_mean = static_cast<double>(f.depth) + (1.0 - static_cast<double>(f.opacity));
-        disparity->at<float>(y, x) = static_cast<float>(std::max(0.0, 1.0 - t_mean) / options_.near);
+        disparity->at<float>(y, x) =
+            static_cast<float>(std::max(0.0, 1.0 - t_mean) / options_.near);
       }
     }
   }

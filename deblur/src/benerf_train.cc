@@ -33,8 +33,11 @@ const Frame* midGroundTruth(const Observation& obs) {
   const Frame* best = nullptr;
   const int64_t mid = obs.blurry.midExposure();
   for (const Frame& g : obs.gt_frames) {
-    if (g.image.size() != obs.blurry.image.size() || g.image.channels() != obs.blurry.image.channels()) continue;
-    if (!best || std::llabs(g.exposure_start_us - mid) < std::llabs(best->exposure_start_us - mid)) best = &g;
+    if (g.image.size() != obs.blurry.image.size() ||
+        g.image.channels() != obs.blurry.image.channels())
+      continue;
+    if (!best || std::llabs(g.exposure_start_us - mid) < std::llabs(best->exposure_start_us - mid))
+      best = &g;
   }
   return best;
 }
@@ -65,7 +68,8 @@ Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& 
   Start s{given, given.virtual_views, 0};
   BenerfOptions& o = s.options;
   if (!o.contrast) o.contrast = obs.contrast;
-  const bool estimate = !o.contrast && o.estimate_contrast && o.event_form == BenerfOptions::EventForm::kAuto;
+  const bool estimate =
+      !o.contrast && o.estimate_contrast && o.event_form == BenerfOptions::EventForm::kAuto;
   if (s.views <= 0 || o.init == BenerfOptions::Init::kEvents || estimate) {
     const BlurMeasurement m = measureBlur(obs, o.contrast, o.log);
     s.blur_px = m.blur_px;
@@ -81,18 +85,23 @@ Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& 
 
 // The knots fitted to a constant rotation through identity at mid-exposure, found from the events
 // (rotationFromEvents), each then moved by its random jitter.
-void initialiseFromEvents(const Observation& obs, BenerfProblem<float>& problem, double blur_px, DeblurResult& result) {
+void initialiseFromEvents(const Observation& obs, BenerfProblem<float>& problem, double blur_px,
+                          DeblurResult& result) {
   const Vector3 omega = rotationFromEvents(obs, problem.camera(), blur_px);
   Trajectory& trajectory = problem.trajectory();
   std::vector<StampedPose> poses;
   for (int k = 0; k <= 20; ++k) {
     const double s = k / 20.0;
-    const int64_t t = trajectory.beginUs() + std::llround(s * static_cast<double>(trajectory.endUs() - trajectory.beginUs()));
+    const int64_t t =
+        trajectory.beginUs() +
+        std::llround(s * static_cast<double>(trajectory.endUs() - trajectory.beginUs()));
     poses.push_back({t, SE3(expSO3((s - 0.5) * omega), Vector3::Zero())});
   }
   const Trajectory fitted =
-      fitTrajectory(trajectory.kind(), static_cast<int>(trajectory.knots().size()), trajectory.beginUs(), trajectory.endUs(), poses);
-  for (size_t k = 0; k < trajectory.knots().size(); ++k) trajectory.knots()[k] = fitted.knots()[k] * trajectory.knots()[k];
+      fitTrajectory(trajectory.kind(), static_cast<int>(trajectory.knots().size()),
+                    trajectory.beginUs(), trajectory.endUs(), poses);
+  for (size_t k = 0; k < trajectory.knots().size(); ++k)
+    trajectory.knots()[k] = fitted.knots()[k] * trajectory.knots()[k];
   result.parameters["initial_rotation_deg"] = omega.norm() * 180 / std::numbers::pi;
 }
 
@@ -107,21 +116,25 @@ class Optimisers {
         knot_step_(Eigen::VectorXd::Zero(static_cast<Eigen::Index>(knot_values_))),
         knot_gradient_(knot_step_),
         field_(problem.field().parameters(), nerf::AdamOptions{.learning_rate = o.field_lr}),
-        knots_({nerf::ParameterBlock<double>{knot_step_.data(), knot_gradient_.data(), knot_values_, nullptr, 1}},
+        knots_({nerf::ParameterBlock<double>{knot_step_.data(), knot_gradient_.data(), knot_values_,
+                                             nullptr, 1}},
                nerf::AdamOptions{.learning_rate = o.knot_lr, .epsilon = 1e-12}) {}
 
   void setSchedule(int iterations) {
     field_.options().decay_rate = knots_.options().decay_rate = options_.lr_final;
-    field_.options().decay_steps = knots_.options().decay_steps = std::max(1, options_.prefit + iterations);
+    field_.options().decay_steps = knots_.options().decay_steps =
+        std::max(1, options_.prefit + iterations);
   }
 
   // One step of both; a non-finite loss or gradient is a loud error naming the step.
-  BenerfProblem<float>::Loss step(const BenerfProblem<float>::Batch& batch, const char* step_name, int step) {
+  BenerfProblem<float>::Loss step(const BenerfProblem<float>::Batch& batch, const char* step_name,
+                                  int step) {
     const auto loss = problem_.evaluate(batch, &knot_gradient_);
     if (!std::isfinite(loss.total) || !knot_gradient_.allFinite()) {
-      throw Error("benerf: the loss or its gradient became " + std::string(std::isfinite(loss.total) ? "non-finite" : "NaN/Inf") +
-                  " at " + step_name + " " + std::to_string(step) + " (blur term " + std::to_string(loss.blur) + ", event term " +
-                  std::to_string(loss.event) + ")");
+      throw Error("benerf: the loss or its gradient became " +
+                  std::string(std::isfinite(loss.total) ? "non-finite" : "NaN/Inf") + " at " +
+                  step_name + " " + std::to_string(step) + " (blur term " +
+                  std::to_string(loss.blur) + ", event term " + std::to_string(loss.event) + ")");
     }
     field_.step();
     knot_step_.setZero();
@@ -144,17 +157,20 @@ class Optimisers {
 
 // The field and knots fitted to EDI's latent frames at the views' times (every band open, no event
 // term), with the training's optimisers, so that their moments carry over.
-void prefit(const Observation& obs, BenerfProblem<float>& problem, Optimisers& optimisers, const BenerfOptions& o,
-            DeblurResult& result) {
+void prefit(const Observation& obs, BenerfProblem<float>& problem, Optimisers& optimisers,
+            const BenerfOptions& o, DeblurResult& result) {
   const auto start = Clock::now();
   const Trajectory& trajectory = problem.trajectory();
   DeblurRequest edi_request;
   for (int k = 0; k < problem.virtualViews(); ++k) {
-    edi_request.times_us.push_back(trajectory.beginUs() +
-                                   std::llround(problem.viewTime(k) * static_cast<double>(trajectory.endUs() - trajectory.beginUs())));
+    edi_request.times_us.push_back(
+        trajectory.beginUs() +
+        std::llround(problem.viewTime(k) *
+                     static_cast<double>(trajectory.endUs() - trajectory.beginUs())));
   }
   std::vector<cv::Mat> targets;
-  for (const Frame& f : EdiDeblurrer{EdiOptions{}}.run(obs, edi_request).frames) targets.push_back(toFloat(f.image));
+  for (const Frame& f : EdiDeblurrer{EdiOptions{}}.run(obs, edi_request).frames)
+    targets.push_back(toFloat(f.image));
   problem.setViewTargets(std::move(targets));
   std::mt19937_64 rng(o.seed + 1);
   for (int it = 0; it < o.prefit; ++it) {
@@ -173,9 +189,14 @@ void prefit(const Observation& obs, BenerfProblem<float>& problem, Optimisers& o
 // checkpoints.
 class Training {
  public:
-  Training(const Observation& obs, const DeblurRequest& request, BenerfProblem<float>& problem, Optimisers& optimisers,
-           const BenerfOptions& o, Clock::time_point run_start)
-      : obs_(obs), request_(request), problem_(problem), optimisers_(optimisers), o_(o), run_start_(run_start) {}
+  Training(const Observation& obs, const DeblurRequest& request, BenerfProblem<float>& problem,
+           Optimisers& optimisers, const BenerfOptions& o, Clock::time_point run_start)
+      : obs_(obs),
+        request_(request),
+        problem_(problem),
+        optimisers_(optimisers),
+        o_(o),
+        run_start_(run_start) {}
 
   // Runs iterations [first, iterations) (fewer when the budget or stop_after says so); returns the
   // iteration count it ended with.
@@ -208,7 +229,8 @@ int Training::run(int first, int iterations, std::mt19937_64& rng, DeblurResult&
   const int bands = problem_.field().bands();
   for (int it = first; it < iterations; ++it) {
     if (o_.coarse_to_fine > 0) {
-      const double opened = std::clamp(static_cast<double>(it) / (o_.coarse_to_fine * iterations), 0.0, 1.0);
+      const double opened =
+          std::clamp(static_cast<double>(it) / (o_.coarse_to_fine * iterations), 0.0, 1.0);
       problem_.field().setBandLimit(1 + (bands - 2) * opened);
     }
     const auto loss = optimisers_.step(problem_.sampleBatch(rng), "iteration", it);
@@ -221,8 +243,9 @@ int Training::run(int first, int iterations, std::mt19937_64& rng, DeblurResult&
     if (o_.budget_seconds > 0 && done == first + 20) fitBudget(done, iterations);
     const bool stop = o_.stop_after > 0 && done >= o_.stop_after;
     if (!o_.checkpoint.empty() && (done % o_.checkpoint_every == 0 || done == iterations || stop)) {
-      writeCheckpoint(o_.checkpoint, Checkpoint{done, iterations, problem_.virtualViews()}, problem_.field(), problem_.trajectory(),
-                      optimisers_.field(), optimisers_.knots(), rng);
+      writeCheckpoint(o_.checkpoint, Checkpoint{done, iterations, problem_.virtualViews()},
+                      problem_.field(), problem_.trajectory(), optimisers_.field(),
+                      optimisers_.knots(), rng);
     }
     if (stop) break;
   }
@@ -242,7 +265,8 @@ void Training::recordCurve(int done, int iterations, DeblurResult& result) {
   }
   if (psnr_every_ > 0 && (done % psnr_every_ == 0 || done == iterations)) {
     const auto start = Clock::now();
-    result.curve_psnr.emplace_back(done, psnr(problem_.render(obs_.blurry.midExposure()), gt_->image));
+    result.curve_psnr.emplace_back(done,
+                                   psnr(problem_.render(obs_.blurry.midExposure()), gt_->image));
     curve_seconds_ += secondsSince(start);
   }
 }
@@ -256,8 +280,10 @@ void Training::fitBudget(int done, int& iterations) {
   const int final_renders = static_cast<int>(times.size()) + (mid_requested ? 0 : 1);
   const double per_iteration = (secondsSince(train_start_) - curve_seconds_) / 20;
   const double render_seconds = problem_.renderSeconds();
-  double left = o_.budget_seconds * 0.95 - secondsSince(run_start_) - final_renders * render_seconds;
-  const int curve_renders = gt_ ? std::min(10, static_cast<int>(0.25 * std::max(0.0, left) / render_seconds)) : 0;
+  double left =
+      o_.budget_seconds * 0.95 - secondsSince(run_start_) - final_renders * render_seconds;
+  const int curve_renders =
+      gt_ ? std::min(10, static_cast<int>(0.25 * std::max(0.0, left) / render_seconds)) : 0;
   left -= curve_renders * render_seconds;
   iterations = std::max(done + 1, static_cast<int>(left / per_iteration) + done);
   optimisers_.setSchedule(iterations);
@@ -266,10 +292,12 @@ void Training::fitBudget(int done, int& iterations) {
 
 // The requested frames, the mid-exposure disparity (an extra render unless mid-exposure is asked
 // for) and the trajectory over the exposure.
-void renderResults(const Observation& obs, const DeblurRequest& request, BenerfProblem<float>& problem, DeblurResult& result) {
+void renderResults(const Observation& obs, const DeblurRequest& request,
+                   BenerfProblem<float>& problem, DeblurResult& result) {
   const auto start = Clock::now();
   const int64_t mid = obs.blurry.midExposure();
-  const bool mid_requested = std::find(request.times_us.begin(), request.times_us.end(), mid) != request.times_us.end();
+  const bool mid_requested =
+      std::find(request.times_us.begin(), request.times_us.end(), mid) != request.times_us.end();
   for (int64_t t : request.times_us) {
     Frame f;
     f.image = problem.render(t, t == mid ? &result.disparity : nullptr);
@@ -288,8 +316,8 @@ void renderResults(const Observation& obs, const DeblurRequest& request, BenerfP
   result.trajectory = std::move(trajectory);
 }
 
-void summarise(BenerfProblem<float>& problem, const BenerfOptions& o, int iterations, const Training& training,
-               DeblurResult& result) {
+void summarise(BenerfProblem<float>& problem, const BenerfOptions& o, int iterations,
+               const Training& training, DeblurResult& result) {
   size_t parameters = 0;
   for (const auto& b : problem.field().parameters()) parameters += b.size;
   const int views = problem.virtualViews();
@@ -327,10 +355,11 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
   int iterations = o.iterations;
   int first = 0;
   if (!o.resume.empty()) {
-    const Checkpoint c = readCheckpoint(o.resume, problem.field(), problem.trajectory(), optimisers.field(), optimisers.knots(), rng);
+    const Checkpoint c = readCheckpoint(o.resume, problem.field(), problem.trajectory(),
+                                        optimisers.field(), optimisers.knots(), rng);
     if (c.views != s.views) {
-      throw Error(o.resume + ": the checkpoint used " + std::to_string(c.views) + " virtual views, these settings " +
-                  std::to_string(s.views));
+      throw Error(o.resume + ": the checkpoint used " + std::to_string(c.views) +
+                  " virtual views, these settings " + std::to_string(s.views));
     }
     first = c.iteration;
     iterations = std::max(iterations, c.iterations);

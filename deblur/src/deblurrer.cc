@@ -10,8 +10,10 @@ namespace evkit {
 std::pair<double, double> contrastSetting(const std::string& method, const std::string& value) {
   const size_t comma = value.find(',');
   const double on = settingNumber(method, "contrast", value.substr(0, comma));
-  const double off = comma == std::string::npos ? on : settingNumber(method, "contrast", value.substr(comma + 1));
-  if (!(on > 0) || !(off > 0)) throw Error(method + ": contrast must be positive (contrast=C or C_on,C_off)");
+  const double off =
+      comma == std::string::npos ? on : settingNumber(method, "contrast", value.substr(comma + 1));
+  if (!(on > 0) || !(off > 0))
+    throw Error(method + ": contrast must be positive (contrast=C or C_on,C_off)");
   return {on, off};
 }
 

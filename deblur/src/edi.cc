@@ -3,12 +3,11 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <opencv2/imgproc.hpp>
 #include <tuple>
 
-#include <opencv2/imgproc.hpp>
-
-#include "evkit/deblur/metrics.h"
 #include "evkit/base/error.h"
+#include "evkit/deblur/metrics.h"
 
 namespace evkit {
 
@@ -30,7 +29,8 @@ cv::Mat gradientMagnitude(const cv::Mat& img) {
 
 }  // namespace
 
-EdiModel::EdiModel(const EventSpan& all, int width, int height, int64_t t_begin_us, int64_t t_end_us)
+EdiModel::EdiModel(const EventSpan& all, int width, int height, int64_t t_begin_us,
+                   int64_t t_end_us)
     : width_(width), height_(height), t_begin_(t_begin_us), t_end_(t_end_us) {
   if (t_end_us <= t_begin_us) throw Error("EDI: the exposure must have a positive duration");
   events_ = PixelEventIndex(all.sliceTime(t_begin_us, t_end_us + 1), width, height);
@@ -55,7 +55,8 @@ EdiModel::EdiModel(const EventSpan& all, int width, int height, int64_t t_begin_
   seg_first_[pixels] = static_cast<uint32_t>(segments_.size());
 }
 
-cv::Mat EdiModel::latent(const cv::Mat& blurry, int64_t t_us, double c_on, double c_off, const EdiOptions& options) const {
+cv::Mat EdiModel::latent(const cv::Mat& blurry, int64_t t_us, double c_on, double c_off,
+                         const EdiOptions& options) const {
   CV_Assert(blurry.rows == height_ && blurry.cols == width_ && blurry.depth() == CV_32F);
   const cv::Mat grey = toGrey(blurry);
   const int channels = blurry.channels();
@@ -67,7 +68,8 @@ cv::Mat EdiModel::latent(const cv::Mat& blurry, int64_t t_us, double c_on, doubl
   std::vector<double> up(static_cast<size_t>(2 * K + 1)), down(static_cast<size_t>(2 * K + 1));
   for (int k = -K; k <= K; ++k) {
     up[static_cast<size_t>(k + K)] = std::exp(std::clamp(c_on * k, -kMaxExponent, kMaxExponent));
-    down[static_cast<size_t>(k + K)] = std::exp(std::clamp(-c_off * k, -kMaxExponent, kMaxExponent));
+    down[static_cast<size_t>(k + K)] =
+        std::exp(std::clamp(-c_off * k, -kMaxExponent, kMaxExponent));
   }
 #pragma omp parallel for schedule(static)
   for (int y = 0; y < height_; ++y) {
@@ -75,7 +77,8 @@ cv::Mat EdiModel::latent(const cv::Mat& blurry, int64_t t_us, double c_on, doubl
     const float* g = grey.ptr<float>(y);
     float* o = out.ptr<float>(y);
     for (int x = 0; x < width_; ++x) {
-      const size_t p = static_cast<size_t>(y) * static_cast<size_t>(width_) + static_cast<size_t>(x);
+      const size_t p =
+          static_cast<size_t>(y) * static_cast<size_t>(width_) + static_cast<size_t>(x);
       double gain = 1.0;
       bool masked = g[x] <= options.black;
       for (int c = 0; c < channels; ++c) masked |= b[x * channels + c] >= options.saturated;
@@ -88,7 +91,8 @@ cv::Mat EdiModel::latent(const cv::Mat& blurry, int64_t t_us, double c_on, doubl
         double integral = 0.0;  // (1/T) integral exp(c E(t) - c E(f)) dt
         for (uint32_t s = seg_first_[p]; s < seg_first_[p + 1]; ++s) {
           const Segment& seg = segments_[s];
-          integral += seg.duration * up[static_cast<size_t>(seg.on - on_f + K)] * down[static_cast<size_t>(seg.off - off_f + K)];
+          integral += seg.duration * up[static_cast<size_t>(seg.on - on_f + K)] *
+                      down[static_cast<size_t>(seg.off - off_f + K)];
         }
         integral /= T;
         if (integral > 0 && std::isfinite(integral)) gain = 1.0 / integral;
@@ -101,12 +105,13 @@ cv::Mat EdiModel::latent(const cv::Mat& blurry, int64_t t_us, double c_on, doubl
   return out;
 }
 
-// Energy of the latent frame at t: the normalised sparsity ||grad L||_1 / ||grad L||_2 of its gradient
-// magnitude (Krishnan, Tay, Fergus, CVPR 2011). Too small a c leaves edges spread over the blur
-// (many small gradients), too large a c adds ghost edges; sharp edges are few large gradients.
+// Energy of the latent frame at t: the normalised sparsity ||grad L||_1 / ||grad L||_2 of its
+// gradient magnitude (Krishnan, Tay, Fergus, CVPR 2011). Too small a c leaves edges spread over the
+// blur (many small gradients), too large a c adds ghost edges; sharp edges are few large gradients.
 // Measured on the synthetic suite (C = 0.2): the total variation alone falls monotonically towards
 // small c, and the correlation with the event edges is nearly flat; this ratio peaks at C.
-double EdiModel::sparsityEnergy(const cv::Mat& blurry_grey, int64_t t_us, double c, double ratio, const EdiOptions& options) const {
+double EdiModel::sparsityEnergy(const cv::Mat& blurry_grey, int64_t t_us, double c, double ratio,
+                                const EdiOptions& options) const {
   const cv::Mat g = gradientMagnitude(latent(blurry_grey, t_us, c, c * ratio, options));
   cv::Mat g2;
   cv::multiply(g, g, g2);
@@ -114,7 +119,8 @@ double EdiModel::sparsityEnergy(const cv::Mat& blurry_grey, int64_t t_us, double
   return l2 > 0 ? cv::mean(g)[0] / l2 : 1.0;
 }
 
-double EdiModel::searchContrast(const cv::Mat& blurry_grey, int64_t t_us, double ratio, const EdiOptions& options) const {
+double EdiModel::searchContrast(const cv::Mat& blurry_grey, int64_t t_us, double ratio,
+                                const EdiOptions& options) const {
   const int n = std::max(3, options.search_grid);
   const double lo = options.search_min, hi = options.search_max;
   std::vector<double> grid(static_cast<size_t>(n)), value(static_cast<size_t>(n));
@@ -151,7 +157,8 @@ double EdiModel::searchContrast(const cv::Mat& blurry_grey, int64_t t_us, double
 DeblurResult EdiDeblurrer::run(const Observation& obs, const DeblurRequest& request) {
   const auto start = std::chrono::steady_clock::now();
   DeblurResult result;
-  const int64_t t0 = obs.blurry.exposure_start_us - options_.margin_us, t1 = obs.blurry.exposure_end_us + options_.margin_us;
+  const int64_t t0 = obs.blurry.exposure_start_us - options_.margin_us,
+                t1 = obs.blurry.exposure_end_us + options_.margin_us;
   const EdiModel model(obs.events.view(), obs.blurry.image.cols, obs.blurry.image.rows, t0, t1);
   result.timings_s["model"] = seconds(start);
   double c_on, c_off;
@@ -177,7 +184,8 @@ DeblurResult EdiDeblurrer::run(const Observation& obs, const DeblurRequest& requ
     f.bit_depth = obs.blurry.bit_depth;
     result.frames.push_back(std::move(f));
   }
-  result.timings_s["latent_per_frame"] = request.times_us.empty() ? 0.0 : seconds(s) / static_cast<double>(request.times_us.size());
+  result.timings_s["latent_per_frame"] =
+      request.times_us.empty() ? 0.0 : seconds(s) / static_cast<double>(request.times_us.size());
   result.timings_s["total"] = seconds(start);
   result.parameters["contrast_on"] = c_on;
   result.parameters["contrast_off"] = c_off;
@@ -191,19 +199,30 @@ const SettingsTable<EdiOptions>& ediSettings() {
   static const SettingsTable<O> table = [] {
     SettingsTable<O> t("edi");
     t.custom({"contrast", "C[,C_off]", "fixed thresholds (over contrast.txt and the search)",
-              [](O& o, const std::string& v) { std::tie(o.contrast_on, o.contrast_off) = contrastSetting("edi", v); },
+              [](O& o, const std::string& v) {
+                std::tie(o.contrast_on, o.contrast_off) = contrastSetting("edi", v);
+              },
               [](const O& o) {
-                if ((o.contrast_on && !(*o.contrast_on > 0)) || (o.contrast_off && !(*o.contrast_off > 0))) {
+                if ((o.contrast_on && !(*o.contrast_on > 0)) ||
+                    (o.contrast_off && !(*o.contrast_off > 0))) {
                   throw Error("edi: contrast must be positive");
                 }
               },
-              [](const O& o) { return o.contrast_on ? shortNumber(*o.contrast_on) + "," + shortNumber(o.contrast_off.value_or(*o.contrast_on)) : "none"; }})
+              [](const O& o) {
+                return o.contrast_on ? shortNumber(*o.contrast_on) + "," +
+                                           shortNumber(o.contrast_off.value_or(*o.contrast_on))
+                                     : "none";
+              }})
         .custom({"search", "0|1", "1: search c even when contrast.txt gives the thresholds",
-                 [](O& o, const std::string& v) { o.use_observation_contrast = settingNumber("edi", "search", v) == 0; },
-                 [](const O&) {}, [](const O& o) { return std::string(o.use_observation_contrast ? "0" : "1"); }})
+                 [](O& o, const std::string& v) {
+                   o.use_observation_contrast = settingNumber("edi", "search", v) == 0;
+                 },
+                 [](const O&) {},
+                 [](const O& o) { return std::string(o.use_observation_contrast ? "0" : "1"); }})
         .number("c_min", &O::search_min, {0, INFINITY, true}, "lowest c of the search")
         .number("c_max", &O::search_max, {0, INFINITY, true}, "highest c of the search")
-        .integer("margin_us", &O::margin_us, {0}, "widen the integration window on both sides (µs)");
+        .integer("margin_us", &O::margin_us, {0},
+                 "widen the integration window on both sides (µs)");
     return t;
   }();
   return table;
@@ -221,6 +240,8 @@ EdiOptions ediOptions(const MethodSettings& settings) {
   return o;
 }
 
-std::unique_ptr<Deblurrer> makeEdi(const MethodSettings& settings) { return std::make_unique<EdiDeblurrer>(ediOptions(settings)); }
+std::unique_ptr<Deblurrer> makeEdi(const MethodSettings& settings) {
+  return std::make_unique<EdiDeblurrer>(ediOptions(settings));
+}
 
 }  // namespace evkit

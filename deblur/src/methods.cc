@@ -25,7 +25,8 @@ class BlurryDeblurrer final : public Deblurrer {
       f.exposure_start_us = f.exposure_end_us = t;
       result.frames.push_back(std::move(f));
     }
-    result.timings_s["total"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    result.timings_s["total"] =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     return result;
   }
 };

@@ -1,11 +1,9 @@
 #include "evkit/deblur/metrics.h"
 
-#include <opencv2/imgproc.hpp>
-
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
-
+#include <opencv2/imgproc.hpp>
 #include <opencv2/quality.hpp>
 
 #include "evkit/base/error.h"
@@ -16,8 +14,9 @@ namespace evkit {
 namespace {
 void checkPair(const cv::Mat& a, const cv::Mat& b) {
   if (a.size() != b.size() || a.channels() != b.channels()) {
-    throw Error("images differ in size or channels (" + std::to_string(a.cols) + "x" + std::to_string(a.rows) + "x" +
-                std::to_string(a.channels()) + " vs " + std::to_string(b.cols) + "x" + std::to_string(b.rows) + "x" +
+    throw Error("images differ in size or channels (" + std::to_string(a.cols) + "x" +
+                std::to_string(a.rows) + "x" + std::to_string(a.channels()) + " vs " +
+                std::to_string(b.cols) + "x" + std::to_string(b.rows) + "x" +
                 std::to_string(b.channels()) + ")");
   }
 }
@@ -63,9 +62,11 @@ std::string brisqueModelDir() {
 
 double brisque(const cv::Mat& image) {
   const std::string dir = brisqueModelDir();
-  const std::string model = dir + "/brisque_model_live.yml", range = dir + "/brisque_range_live.yml";
+  const std::string model = dir + "/brisque_model_live.yml",
+                    range = dir + "/brisque_range_live.yml";
   if (!std::filesystem::exists(model) || !std::filesystem::exists(range)) {
-    throwInFile(model, "BRISQUE model files not found (Debian: opencv-data; or set EVKIT_BRISQUE_DIR)");
+    throwInFile(model,
+                "BRISQUE model files not found (Debian: opencv-data; or set EVKIT_BRISQUE_DIR)");
   }
   const cv::Mat u8 = quantize(image, 8);
   return cv::quality::QualityBRISQUE::compute(u8, model, range)[0];

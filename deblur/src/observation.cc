@@ -5,9 +5,9 @@
 #include <fstream>
 #include <sstream>
 
+#include "evkit/base/error.h"
 #include "evkit/events/atomic_file.h"
 #include "evkit/events/decimal.h"
-#include "evkit/base/error.h"
 #include "evkit/events/image_io.h"
 #include "evkit/events/io.h"
 #include "evkit/spline/tum.h"
@@ -17,7 +17,8 @@ namespace fs = std::filesystem;
 
 namespace {
 
-std::vector<double> readNumbers(const std::string& path, size_t min_count, size_t max_count, const std::string& expected) {
+std::vector<double> readNumbers(const std::string& path, size_t min_count, size_t max_count,
+                                const std::string& expected) {
   std::ifstream in(path);
   if (!in) throwInFile(path, "cannot open");
   std::vector<double> values;
@@ -31,14 +32,17 @@ std::vector<double> readNumbers(const std::string& path, size_t min_count, size_
       throwAtLine(path, 1, "'" + token + "' is not a number (expected " + expected + ")");
     }
   }
-  if (values.size() < min_count || values.size() > max_count) throwAtLine(path, 1, "expected " + expected);
+  if (values.size() < min_count || values.size() > max_count)
+    throwAtLine(path, 1, "expected " + expected);
   return values;
 }
 
 }  // namespace
 
 Observation loadObservation(const std::string& dir) {
-  if (!fs::is_directory(dir)) throwInFile(dir, "not an observation folder (expected blurry.png, exposure.txt, events.*, calib.txt)");
+  if (!fs::is_directory(dir))
+    throwInFile(
+        dir, "not an observation folder (expected blurry.png, exposure.txt, events.*, calib.txt)");
   Observation obs;
   obs.source = dir;
   obs.blurry = readImageFile((fs::path(dir) / "blurry.png").string());
@@ -52,16 +56,20 @@ Observation loadObservation(const std::string& dir) {
   const char* pb = b.data();
   int64_t t0 = 0, t1 = 0;
   if (!parseInt(pa, a.data() + a.size(), INT64_MIN, INT64_MAX, t0) || pa != a.data() + a.size() ||
-      !parseInt(pb, b.data() + b.size(), INT64_MIN, INT64_MAX, t1) || pb != b.data() + b.size() || t1 <= t0) {
-    throwAtLine(exposure_path, 1, "expected 'exposure_start_us exposure_end_us' (integers, start < end)");
+      !parseInt(pb, b.data() + b.size(), INT64_MIN, INT64_MAX, t1) || pb != b.data() + b.size() ||
+      t1 <= t0) {
+    throwAtLine(exposure_path, 1,
+                "expected 'exposure_start_us exposure_end_us' (integers, start < end)");
   }
   obs.blurry.exposure_start_us = t0;
   obs.blurry.exposure_end_us = t1;
   std::string events_path;
   for (const auto& entry : fs::directory_iterator(dir)) {
-    if (entry.path().stem() == "events" && entry.is_regular_file()) events_path = entry.path().string();
+    if (entry.path().stem() == "events" && entry.is_regular_file())
+      events_path = entry.path().string();
   }
-  if (events_path.empty()) throwInFile(dir, "no events file (events.h5, events.txt, events.aedat4, ...)");
+  if (events_path.empty())
+    throwInFile(dir, "no events file (events.h5, events.txt, events.aedat4, ...)");
   const Recording rec = readRecording(events_path);
   obs.events = rec.events;
   obs.events.setSensor(SensorSize{obs.blurry.image.cols, obs.blurry.image.rows});
@@ -70,19 +78,24 @@ Observation loadObservation(const std::string& dir) {
   const fs::path contrast = fs::path(dir) / "contrast.txt";
   if (fs::exists(contrast)) {
     const std::vector<double> c = readNumbers(contrast.string(), 1, 2, "'C_on C_off' or 'C'");
-    if (!(c.front() > 0) || !(c.back() > 0)) throwAtLine(contrast.string(), 1, "thresholds must be positive");
+    if (!(c.front() > 0) || !(c.back() > 0))
+      throwAtLine(contrast.string(), 1, "thresholds must be positive");
     obs.contrast = std::make_pair(c.front(), c.back());
   }
   const fs::path gt = fs::path(dir) / "gt";
   if (fs::is_directory(gt)) {
     for (const auto& entry : fs::directory_iterator(gt)) {
       const std::string stem = entry.path().stem().string();
-      if (entry.path().extension() != ".png" || stem.empty() || !std::all_of(stem.begin(), stem.end(), ::isdigit)) continue;
+      if (entry.path().extension() != ".png" || stem.empty() ||
+          !std::all_of(stem.begin(), stem.end(), ::isdigit))
+        continue;
       Frame f = readImageFile(entry.path().string());
       f.exposure_start_us = f.exposure_end_us = std::stoll(stem);
       obs.gt_frames.push_back(std::move(f));
     }
-    std::sort(obs.gt_frames.begin(), obs.gt_frames.end(), [](const Frame& x, const Frame& y) { return x.exposure_start_us < y.exposure_start_us; });
+    std::sort(obs.gt_frames.begin(), obs.gt_frames.end(), [](const Frame& x, const Frame& y) {
+      return x.exposure_start_us < y.exposure_start_us;
+    });
     if (fs::exists(gt / "poses.txt")) obs.gt_poses = readTum((gt / "poses.txt").string());
   }
   return obs;
@@ -93,12 +106,15 @@ void saveObservation(const Observation& obs, const std::string& dir) {
   const std::string tmp = out.temporaryPath();
   fs::create_directories(tmp);
   writeImageFile(tmp + "/blurry.png", obs.blurry.image, obs.blurry.bit_depth);
-  std::ofstream(tmp + "/exposure.txt") << obs.blurry.exposure_start_us << ' ' << obs.blurry.exposure_end_us << '\n';
+  std::ofstream(tmp + "/exposure.txt")
+      << obs.blurry.exposure_start_us << ' ' << obs.blurry.exposure_end_us << '\n';
   Recording rec;
   rec.events = obs.events;
   writeRecording(tmp + "/events.h5", rec);
   writeCalibration(tmp + "/calib.txt", obs.camera);
-  if (obs.contrast) std::ofstream(tmp + "/contrast.txt") << obs.contrast->first << ' ' << obs.contrast->second << '\n';
+  if (obs.contrast)
+    std::ofstream(tmp + "/contrast.txt")
+        << obs.contrast->first << ' ' << obs.contrast->second << '\n';
   out.commit();
 }
 
@@ -119,13 +135,17 @@ Observation observationFromRecording(const std::string& path, size_t index, int6
       }
     }
   }
-  if (!found) throwInFile(path, "has " + std::to_string(seen) + " frames; frame " + std::to_string(index) + " does not exist");
+  if (!found)
+    throwInFile(path, "has " + std::to_string(seen) + " frames; frame " + std::to_string(index) +
+                          " does not exist");
   if (obs.blurry.exposure_end_us <= obs.blurry.exposure_start_us) {
     throwInFile(path, "frame " + std::to_string(index) + " has no exposure interval (start " +
-                          std::to_string(obs.blurry.exposure_start_us) + ", end " + std::to_string(obs.blurry.exposure_end_us) + ")");
+                          std::to_string(obs.blurry.exposure_start_us) + ", end " +
+                          std::to_string(obs.blurry.exposure_end_us) + ")");
   }
   // Second pass: the events of the exposure (the time window uses the file's index if it has one).
-  const Recording rec = readRecording(path, std::nullopt, obs.blurry.exposure_start_us - margin_us, obs.blurry.exposure_end_us + margin_us + 1);
+  const Recording rec = readRecording(path, std::nullopt, obs.blurry.exposure_start_us - margin_us,
+                                      obs.blurry.exposure_end_us + margin_us + 1);
   obs.events = rec.events;
   obs.events.setSensor(SensorSize{obs.blurry.image.cols, obs.blurry.image.rows});
   if (rec.info.calibration) {

@@ -23,7 +23,8 @@ std::string shortNumber(double v) {
 std::string SettingRange::describe() const {
   const bool low = std::isfinite(min), high = std::isfinite(max);
   if (low && high) {
-    return std::string("in ") + (min_open ? "(" : "[") + shortNumber(min) + ", " + shortNumber(max) + (max_open ? ")" : "]");
+    return std::string("in ") + (min_open ? "(" : "[") + shortNumber(min) + ", " +
+           shortNumber(max) + (max_open ? ")" : "]");
   }
   if (low) return (min_open ? "> " : ">= ") + shortNumber(min);
   if (high) return (max_open ? "< " : "<= ") + shortNumber(max);

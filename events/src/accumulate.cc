@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
-
 #include <opencv2/imgproc.hpp>
 
 namespace evkit {
@@ -49,7 +48,8 @@ cv::Mat accumulateSigned(const EventSpan& events, float c_on, float c_off) {
   float* data = img.ptr<float>();
   const int8_t* p = events.p.data();
   if (c_on == 1.0f && c_off == 1.0f) {
-    forEachEvent(events, [&](uint32_t pixel, size_t i) { data[pixel] += static_cast<float>(p[i]); });
+    forEachEvent(events,
+                 [&](uint32_t pixel, size_t i) { data[pixel] += static_cast<float>(p[i]); });
   } else {
     const float gain[3] = {-c_off, 0.0f, c_on};
     forEachEvent(events, [&](uint32_t pixel, size_t i) { data[pixel] += gain[p[i] + 1]; });
@@ -74,8 +74,10 @@ cv::Mat accumulateNormalized(const EventSpan& events) {
 
 TimeSurface timeSurface(const EventSpan& events, int64_t t_ref_us, double tau_us) {
   assert(tau_us > 0);
-  const size_t pixels = static_cast<size_t>(events.sensor.width) * static_cast<size_t>(events.sensor.height);
-  std::vector<int64_t> last[2] = {std::vector<int64_t>(pixels, INT64_MIN), std::vector<int64_t>(pixels, INT64_MIN)};
+  const size_t pixels =
+      static_cast<size_t>(events.sensor.width) * static_cast<size_t>(events.sensor.height);
+  std::vector<int64_t> last[2] = {std::vector<int64_t>(pixels, INT64_MIN),
+                                  std::vector<int64_t>(pixels, INT64_MIN)};
   const size_t end = events.lowerBound(t_ref_us == INT64_MAX ? t_ref_us : t_ref_us + 1);
   const EventSpan upto = events.subspan(0, end);
   forEachEvent(upto, [&](uint32_t pixel, size_t i) { last[upto.p[i] > 0][pixel] = upto.t[i]; });
@@ -85,7 +87,8 @@ TimeSurface timeSurface(const EventSpan& events, int64_t t_ref_us, double tau_us
     float* data = out[pol]->ptr<float>();
     for (size_t k = 0; k < pixels; ++k) {
       if (last[pol][k] != INT64_MIN) {
-        data[k] = static_cast<float>(std::exp(-static_cast<double>(t_ref_us - last[pol][k]) / tau_us));
+        data[k] =
+            static_cast<float>(std::exp(-static_cast<double>(t_ref_us - last[pol][k]) / tau_us));
       }
     }
   }
@@ -101,7 +104,8 @@ std::vector<cv::Mat> voxelGrid(const EventSpan& events, int bins, int64_t t0_us,
   std::vector<float*> planes;
   for (cv::Mat& g : grid) planes.push_back(g.ptr<float>());
   forEachEvent(events, [&](uint32_t pixel, size_t i) {
-    const double tn = std::clamp(static_cast<double>(events.t[i] - t0_us) * scale, 0.0, double(bins - 1));
+    const double tn =
+        std::clamp(static_cast<double>(events.t[i] - t0_us) * scale, 0.0, double(bins - 1));
     const int b = std::min(static_cast<int>(tn), bins - 1);
     const float frac = static_cast<float>(tn - b);
     const float pol = events.p[i];
@@ -131,7 +135,8 @@ std::vector<std::pair<size_t, size_t>> windowsByTime(const EventSpan& events, in
 std::vector<std::pair<size_t, size_t>> windowsByCount(const EventSpan& events, size_t count) {
   assert(count > 0);
   std::vector<std::pair<size_t, size_t>> windows;
-  for (size_t b = 0; b < events.size(); b += count) windows.emplace_back(b, std::min(events.size(), b + count));
+  for (size_t b = 0; b < events.size(); b += count)
+    windows.emplace_back(b, std::min(events.size(), b + count));
   return windows;
 }
 
@@ -145,7 +150,9 @@ cv::Mat renderPolarity(const PolarityCounts& counts, float saturation) {
     for (int c = 0; c < out.cols; ++c) {
       // Fade from white towards pure red (ON) and pure blue (OFF); both present mixes to purple.
       const float a_on = std::min(on[c] / sat, 1.0f), a_off = std::min(off[c] / sat, 1.0f);
-      const auto level = [](float v) { return static_cast<uchar>(std::lround(255.0f * std::clamp(v, 0.0f, 1.0f))); };
+      const auto level = [](float v) {
+        return static_cast<uchar>(std::lround(255.0f * std::clamp(v, 0.0f, 1.0f)));
+      };
       px[c] = cv::Vec3b(level(1.0f - a_on), level(1.0f - a_on - a_off), level(1.0f - a_off));
     }
   }

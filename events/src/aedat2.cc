@@ -38,8 +38,9 @@ class Aedat2Reader final : public EventReader {
     info_.format = Format::kAedat2;
     info_.layout = "aedat2";
     readHeader();
-    block_.resize(std::min<size_t>(kBlockRecords * kRecordBytes,
-                                   static_cast<size_t>(file_.remaining()) / kRecordBytes * kRecordBytes + kRecordBytes));
+    block_.resize(std::min<size_t>(
+        kBlockRecords * kRecordBytes,
+        static_cast<size_t>(file_.remaining()) / kRecordBytes * kRecordBytes + kRecordBytes));
     for (const char* key : {"dvs_events", "aps_words", "imu_words", "special_words", "frames"}) {
       info_.counters[key] = 0;
     }
@@ -64,17 +65,19 @@ class Aedat2Reader final : public EventReader {
         const int x_raw = static_cast<int>((addr >> 12) & 0x3FF);
         const int y_raw = static_cast<int>((addr >> 22) & 0x1FF);
         if (x_raw >= width_ || y_raw >= height_) {
-          file_.failAt(recordOffset(), "DVS event (x, y) = (" + std::to_string(x_raw) + ", " + std::to_string(y_raw) +
-                                           ") outside the " + std::to_string(width_) + "x" +
-                                           std::to_string(height_) + " sensor of the AEChip");
+          file_.failAt(recordOffset(), "DVS event (x, y) = (" + std::to_string(x_raw) + ", " +
+                                           std::to_string(y_raw) + ") outside the " +
+                                           std::to_string(width_) + "x" + std::to_string(height_) +
+                                           " sensor of the AEChip");
         }
         if (t < last_dvs_t_) {
-          file_.failAt(recordOffset(), "DVS timestamp " + std::to_string(t) + " us goes back in time (previous " +
+          file_.failAt(recordOffset(), "DVS timestamp " + std::to_string(t) +
+                                           " us goes back in time (previous " +
                                            std::to_string(last_dvs_t_) + " us)");
         }
         last_dvs_t_ = t;
-        ev.push_back(t, static_cast<uint16_t>(width_ - 1 - x_raw), static_cast<uint16_t>(height_ - 1 - y_raw),
-                     (addr >> 11) & 1 ? 1 : -1);
+        ev.push_back(t, static_cast<uint16_t>(width_ - 1 - x_raw),
+                     static_cast<uint16_t>(height_ - 1 - y_raw), (addr >> 11) & 1 ? 1 : -1);
         ++dvs_;
       } else if ((addr & kImuMask) == kImuMask) {
         ++imu_;
@@ -107,7 +110,8 @@ class Aedat2Reader final : public EventReader {
       if (at != std::string::npos && line.rfind("#", 0) == 0 && chip.empty()) {
         chip = line.substr(at + 7);
         chip.erase(0, chip.find_first_not_of(' '));
-        chip = chip.substr(chip.find_last_of('.') == std::string::npos ? 0 : chip.find_last_of('.') + 1);
+        chip = chip.substr(
+            chip.find_last_of('.') == std::string::npos ? 0 : chip.find_last_of('.') + 1);
       }
     }
     data_start_ = file_.offset();
@@ -138,7 +142,9 @@ class Aedat2Reader final : public EventReader {
     return len_ > 0;
   }
 
-  int64_t recordOffset() const { return block_offset_ + static_cast<int64_t>((pos_ - 1) * kRecordBytes); }
+  int64_t recordOffset() const {
+    return block_offset_ + static_cast<int64_t>((pos_ - 1) * kRecordBytes);
+  }
 
   int64_t unwrap(uint32_t raw) {
     if (have_t_ && raw < last_raw_ && last_raw_ - raw > 0x80000000u) wrap_ += int64_t{1} << 32;
@@ -153,15 +159,16 @@ class Aedat2Reader final : public EventReader {
     const int y_raw = static_cast<int>((addr >> 22) & 0x1FF);
     if (type > 1) return;  // other readouts (e.g. colour "C" reads) are not frames
     if (x >= width_ || y_raw >= height_) {
-      file_.failAt(recordOffset(), "APS read (x, y) = (" + std::to_string(x) + ", " + std::to_string(y_raw) +
-                                       ") outside the sensor");
+      file_.failAt(recordOffset(), "APS read (x, y) = (" + std::to_string(x) + ", " +
+                                       std::to_string(y_raw) + ") outside the sensor");
     }
     const size_t pixels = static_cast<size_t>(width_) * static_cast<size_t>(height_);
     if (reset_.empty()) {
       reset_.assign(pixels, 0);
       signal_.assign(pixels, 0);
     }
-    const size_t index = static_cast<size_t>(height_ - 1 - y_raw) * static_cast<size_t>(width_) + static_cast<size_t>(x);
+    const size_t index = static_cast<size_t>(height_ - 1 - y_raw) * static_cast<size_t>(width_) +
+                         static_cast<size_t>(x);
     const int value = static_cast<int>(addr & 0x3FF);
     if (type == 0) {
       if (signals_ > 0) {

@@ -13,7 +13,6 @@
 // Other packet types (special, IMU, ...) are counted and skipped.
 
 #include <algorithm>
-
 #include <opencv2/imgproc.hpp>
 
 #include "binary_file.h"
@@ -58,10 +57,13 @@ class Aedat31Reader final : public EventReader {
         const int64_t t = time(loadLe32(e + 4));
         const uint16_t x = static_cast<uint16_t>((data >> 17) & 0x7FFF);
         const uint16_t y = static_cast<uint16_t>((data >> 2) & 0x7FFF);
-        const int64_t at = packet_offset_ + kHeaderBytes + static_cast<int64_t>((next_event_ - 1) * static_cast<size_t>(event_size_));
+        const int64_t at =
+            packet_offset_ + kHeaderBytes +
+            static_cast<int64_t>((next_event_ - 1) * static_cast<size_t>(event_size_));
         if (info_.sensor.known() && !info_.sensor.contains(x, y)) {
-          file_.failAt(at, "polarity event (x, y) = (" + std::to_string(x) + ", " + std::to_string(y) +
-                               ") outside the " + std::to_string(info_.sensor.width) + "x" +
+          file_.failAt(at, "polarity event (x, y) = (" + std::to_string(x) + ", " +
+                               std::to_string(y) + ") outside the " +
+                               std::to_string(info_.sensor.width) + "x" +
                                std::to_string(info_.sensor.height) + " sensor");
         }
         if (t < last_t_) {
@@ -73,7 +75,8 @@ class Aedat31Reader final : public EventReader {
       } else {
         const size_t i = next_event_++;
         frame(payload_.data() + i * static_cast<size_t>(event_size_), chunk,
-              packet_offset_ + kHeaderBytes + static_cast<int64_t>(i * static_cast<size_t>(event_size_)));
+              packet_offset_ + kHeaderBytes +
+                  static_cast<int64_t>(i * static_cast<size_t>(event_size_)));
       }
     }
     return ev.size() > start_events || chunk.frames.size() > start_frames;
@@ -113,7 +116,8 @@ class Aedat31Reader final : public EventReader {
       uint8_t h[kHeaderBytes];
       const size_t got = file_.read(h, kHeaderBytes);
       if (got == 0) return false;
-      if (got < static_cast<size_t>(kHeaderBytes)) file_.failAt(packet_offset_, "truncated packet header (28 bytes expected)");
+      if (got < static_cast<size_t>(kHeaderBytes))
+        file_.failAt(packet_offset_, "truncated packet header (28 bytes expected)");
       const int type = static_cast<int16_t>(loadLe16(h));
       event_size_ = loadI32(h + 4);
       const int32_t ts_offset = loadI32(h + 8);
@@ -122,13 +126,15 @@ class Aedat31Reader final : public EventReader {
       const int32_t number = loadI32(h + 20);
       if (event_size_ <= 0 || capacity < 0 || number < 0 || number > capacity || overflow_ < 0 ||
           ts_offset < 0 || ts_offset + 4 > event_size_) {
-        file_.failAt(packet_offset_, "invalid packet header (event size " + std::to_string(event_size_) +
-                                         ", capacity " + std::to_string(capacity) + ", number " +
+        file_.failAt(packet_offset_, "invalid packet header (event size " +
+                                         std::to_string(event_size_) + ", capacity " +
+                                         std::to_string(capacity) + ", number " +
                                          std::to_string(number) + ")");
       }
       const int64_t bytes = int64_t{capacity} * event_size_;
       if (bytes > file_.remaining() || bytes > kMaxPacketBytes) {
-        file_.failAt(packet_offset_, "packet of " + std::to_string(bytes) + " bytes runs past the end of the file (truncated?)");
+        file_.failAt(packet_offset_, "packet of " + std::to_string(bytes) +
+                                         " bytes runs past the end of the file (truncated?)");
       }
       ++info_.counters["packets.type" + std::to_string(type)];
       if (type != kPolarityType && type != kFrameType) {
@@ -136,10 +142,12 @@ class Aedat31Reader final : public EventReader {
         continue;
       }
       if (type == kPolarityType && (event_size_ != 8 || ts_offset != 4)) {
-        file_.failAt(packet_offset_, "polarity packet with event size " + std::to_string(event_size_) + " (expected 8)");
+        file_.failAt(packet_offset_, "polarity packet with event size " +
+                                         std::to_string(event_size_) + " (expected 8)");
       }
       if (type == kFrameType && event_size_ < kFrameHeaderBytes) {
-        file_.failAt(packet_offset_, "frame packet with event size " + std::to_string(event_size_) + " (expected >= 36)");
+        file_.failAt(packet_offset_, "frame packet with event size " + std::to_string(event_size_) +
+                                         " (expected >= 36)");
       }
       payload_.resize(static_cast<size_t>(bytes));
       file_.readExact(payload_.data(), payload_.size(), "packet payload");
@@ -156,17 +164,22 @@ class Aedat31Reader final : public EventReader {
     const uint32_t info = loadLe32(e);
     if ((info & 1) == 0) return;
     const int channels = static_cast<int>((info >> 1) & 7);
-    const int32_t lx = loadI32(e + 20), ly = loadI32(e + 24), px = loadI32(e + 28), py = loadI32(e + 32);
-    if (channels != 1 && channels != 3 && channels != 4) file_.failAt(at, "frame with " + std::to_string(channels) + " channels (1, 3 or 4 expected)");
+    const int32_t lx = loadI32(e + 20), ly = loadI32(e + 24), px = loadI32(e + 28),
+                  py = loadI32(e + 32);
+    if (channels != 1 && channels != 3 && channels != 4)
+      file_.failAt(at, "frame with " + std::to_string(channels) + " channels (1, 3 or 4 expected)");
     if (lx <= 0 || ly <= 0 || lx > 65535 || ly > 65535 || px < 0 || py < 0 ||
         kFrameHeaderBytes + int64_t{2} * lx * ly * channels > event_size_) {
-      file_.failAt(at, "frame of " + std::to_string(lx) + "x" + std::to_string(ly) + "x" + std::to_string(channels) +
-                           " pixels does not fit its " + std::to_string(event_size_) + "-byte event");
+      file_.failAt(at, "frame of " + std::to_string(lx) + "x" + std::to_string(ly) + "x" +
+                           std::to_string(channels) + " pixels does not fit its " +
+                           std::to_string(event_size_) + "-byte event");
     }
     cv::Mat raw(ly, lx, CV_16UC(channels));
     const uint8_t* pixels = e + kFrameHeaderBytes;
     uint16_t* out = raw.ptr<uint16_t>();
-    for (size_t i = 0; i < static_cast<size_t>(lx) * static_cast<size_t>(ly) * static_cast<size_t>(channels); ++i) {
+    for (size_t i = 0;
+         i < static_cast<size_t>(lx) * static_cast<size_t>(ly) * static_cast<size_t>(channels);
+         ++i) {
       out[i] = loadLe16(pixels + 2 * i);
     }
     if (channels == 3) cv::cvtColor(raw, raw, cv::COLOR_RGB2BGR);
@@ -176,7 +189,8 @@ class Aedat31Reader final : public EventReader {
     cv::Mat image;
     raw.convertTo(image, CV_32F, 1.0 / 65535.0);
     const SensorSize s = info_.sensor;
-    if (s.known() && px + lx <= s.width && py + ly <= s.height && (lx != s.width || ly != s.height)) {
+    if (s.known() && px + lx <= s.width && py + ly <= s.height &&
+        (lx != s.width || ly != s.height)) {
       frame.image = cv::Mat::zeros(s.height, s.width, image.type());
       image.copyTo(frame.image(cv::Rect(px, py, lx, ly)));
     } else {
@@ -184,7 +198,8 @@ class Aedat31Reader final : public EventReader {
     }
     frame.exposure_start_us = time(loadLe32(e + 12));
     frame.exposure_end_us = time(loadLe32(e + 16));
-    if (frame.exposure_end_us < frame.exposure_start_us) file_.failAt(at, "frame exposure ends before it starts");
+    if (frame.exposure_end_us < frame.exposure_start_us)
+      file_.failAt(at, "frame exposure ends before it starts");
     chunk.frames.push_back(std::move(frame));
     ++info_.counters["frames"];
   }

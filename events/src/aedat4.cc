@@ -13,22 +13,21 @@
 #include <cstring>
 #include <filesystem>
 #include <map>
+#include <opencv2/imgproc.hpp>
 #include <sstream>
 
-#include <opencv2/imgproc.hpp>
-
-#include "binary_file.h"
-#include "codec.h"
-#include "evkit/events/atomic_file.h"
-#include "evkit/base/error.h"
-#include "evkit/events/image_io.h"
-#include "formats.h"
 #include "aedat4/events_generated.h"
 #include "aedat4/filedatatable_generated.h"
 #include "aedat4/frame_generated.h"
 #include "aedat4/imus_generated.h"
 #include "aedat4/ioheader_generated.h"
 #include "aedat4/triggers_generated.h"
+#include "binary_file.h"
+#include "codec.h"
+#include "evkit/base/error.h"
+#include "evkit/events/atomic_file.h"
+#include "evkit/events/image_io.h"
+#include "formats.h"
 
 namespace evkit::detail {
 
@@ -39,7 +38,8 @@ namespace {
 constexpr char kMagic[] = "#!AER-DAT4.0\r\n";
 constexpr size_t kMagicBytes = 14;
 constexpr uint32_t kMaxHeaderBytes = 16u << 20;
-constexpr size_t kMaxDecompressedBytes = size_t{512} << 20;  // decompressed; a 4K BGRA16 frame is 64 MB
+constexpr size_t kMaxDecompressedBytes = size_t{512}
+                                         << 20;  // decompressed; a 4K BGRA16 frame is 64 MB
 
 Codec codecFor(fb4::CompressionType c) {
   switch (c) {
@@ -67,7 +67,8 @@ std::string attrText(const std::string& xml, size_t begin, size_t end, const std
   if (at == std::string::npos || at >= end) return "";
   const size_t open = xml.find('>', at);
   const size_t close = xml.find("</attr>", at);
-  if (open == std::string::npos || close == std::string::npos || close < open || close > end) return "";
+  if (open == std::string::npos || close == std::string::npos || close < open || close > end)
+    return "";
   return xml.substr(open + 1, close - open - 1);
 }
 
@@ -75,11 +76,13 @@ std::string attrText(const std::string& xml, size_t begin, size_t end, const std
 std::map<int, StreamInfo> parseStreams(const std::string& xml) {
   std::map<int, StreamInfo> streams;
   std::vector<std::pair<int, size_t>> starts;
-  for (size_t at = xml.find("outInfo/"); at != std::string::npos; at = xml.find("outInfo/", at + 8)) {
+  for (size_t at = xml.find("outInfo/"); at != std::string::npos;
+       at = xml.find("outInfo/", at + 8)) {
     // Only ".../outInfo/<digits>/\"" opens a stream node.
     size_t p = at + 8;
     int id = 0, digits = 0;
-    while (p < xml.size() && xml[p] >= '0' && xml[p] <= '9' && digits < 9) id = id * 10 + (xml[p++] - '0'), ++digits;
+    while (p < xml.size() && xml[p] >= '0' && xml[p] <= '9' && digits < 9)
+      id = id * 10 + (xml[p++] - '0'), ++digits;
     if (digits == 0 || p + 1 >= xml.size() || xml[p] != '/' || xml[p + 1] != '"') continue;
     starts.emplace_back(id, at);
   }
@@ -106,7 +109,8 @@ std::map<int, StreamInfo> parseStreams(const std::string& xml) {
 }
 
 template <typename T>
-const T* verifiedSizePrefixedRoot(const std::vector<uint8_t>& buf, size_t size, const char* identifier) {
+const T* verifiedSizePrefixedRoot(const std::vector<uint8_t>& buf, size_t size,
+                                  const char* identifier) {
   flatbuffers::Verifier verifier(buf.data(), size, 64, 10'000'000);
   if (!verifier.VerifySizePrefixedBuffer<T>(identifier)) return nullptr;
   return flatbuffers::GetSizePrefixedRoot<T>(buf.data());
@@ -146,8 +150,11 @@ class Aedat4Reader final : public EventReader {
       file_.readExact(raw.data(), raw.size(), "file data table");
       std::string error;
       size_t table_size = 0;
-      if (!decompress(codec_, raw.data(), raw.size(), table_buf_, table_size, kMaxDecompressedBytes, error)) throw Error(error);
-      const auto* table = verifiedSizePrefixedRoot<fb4::FileDataTable>(table_buf_, table_size, "FTAB");
+      if (!decompress(codec_, raw.data(), raw.size(), table_buf_, table_size, kMaxDecompressedBytes,
+                      error))
+        throw Error(error);
+      const auto* table =
+          verifiedSizePrefixedRoot<fb4::FileDataTable>(table_buf_, table_size, "FTAB");
       if (table == nullptr || table->table() == nullptr) throw Error("invalid file data table");
       // byte_offset is where the packet's data starts, 8 bytes after its header (as DV writes it).
       int64_t target = -1;
@@ -168,7 +175,8 @@ class Aedat4Reader final : public EventReader {
  private:
   void readHeader() {
     char magic[kMagicBytes];
-    if (file_.read(magic, kMagicBytes) != kMagicBytes || std::memcmp(magic, kMagic, kMagicBytes) != 0) {
+    if (file_.read(magic, kMagicBytes) != kMagicBytes ||
+        std::memcmp(magic, kMagic, kMagicBytes) != 0) {
       file_.failAt(0, "not an AEDAT 4.0 file (expected '#!AER-DAT4.0' and CRLF)");
     }
     // The header is a size-prefixed FlatBuffer: its alignment counts from the length field, so the
@@ -176,15 +184,18 @@ class Aedat4Reader final : public EventReader {
     uint8_t len_bytes[4];
     file_.readExact(len_bytes, 4, "the header length");
     const uint32_t len = loadLe32(len_bytes);
-    if (len > kMaxHeaderBytes || len > file_.remaining()) file_.failAt(14, "header length " + std::to_string(len) + " runs past the end of the file");
+    if (len > kMaxHeaderBytes || len > file_.remaining())
+      file_.failAt(14, "header length " + std::to_string(len) + " runs past the end of the file");
     std::vector<uint8_t> header(size_t{len} + 4);
     std::memcpy(header.data(), len_bytes, 4);
     file_.readExact(header.data() + 4, len, "the IOHeader");
     flatbuffers::Verifier verifier(header.data(), header.size(), 64, 1000);
-    if (!verifier.VerifySizePrefixedBuffer<fb4::IOHeader>(nullptr)) file_.failAt(18, "corrupt IOHeader FlatBuffer");
+    if (!verifier.VerifySizePrefixedBuffer<fb4::IOHeader>(nullptr))
+      file_.failAt(18, "corrupt IOHeader FlatBuffer");
     const fb4::IOHeader* h = flatbuffers::GetSizePrefixedRoot<fb4::IOHeader>(header.data());
     const int32_t compression = static_cast<int32_t>(h->compression());
-    if (compression < 0 || compression > 4) file_.failAt(18, "unknown compression " + std::to_string(compression));
+    if (compression < 0 || compression > 4)
+      file_.failAt(18, "unknown compression " + std::to_string(compression));
     codec_ = codecFor(h->compression());
     data_table_ = h->data_table_position();
     packets_start_ = file_.offset();
@@ -206,7 +217,8 @@ class Aedat4Reader final : public EventReader {
       }
     }
     for (const auto& [id, s] : streams_) {
-      if (s.type == "FRME" && !info_.sensor.known() && s.width > 0) info_.sensor = SensorSize{s.width, s.height};
+      if (s.type == "FRME" && !info_.sensor.known() && s.width > 0)
+        info_.sensor = SensorSize{s.width, s.height};
     }
   }
 
@@ -223,21 +235,27 @@ class Aedat4Reader final : public EventReader {
       const int32_t size = static_cast<int32_t>(loadLe32(h + 4));
       const int64_t limit = data_table_ >= 0 ? data_table_ : file_.size();
       if (size < 0 || size > limit - file_.offset()) {
-        file_.failAt(at, "packet of " + std::to_string(size) + " bytes runs past the end of the file (truncated?)");
+        file_.failAt(at, "packet of " + std::to_string(size) +
+                             " bytes runs past the end of the file (truncated?)");
       }
       raw_.resize(static_cast<size_t>(size));
       file_.readExact(raw_.data(), raw_.size(), "packet data");
       const auto it = streams_.find(stream);
-      if (it == streams_.end()) file_.failAt(at, "packet of stream " + std::to_string(stream) + ", which the header does not declare");
+      if (it == streams_.end())
+        file_.failAt(at, "packet of stream " + std::to_string(stream) +
+                             ", which the header does not declare");
       const std::string& type = it->second.type;
       ++info_.counters["packets." + type];
       if (type != "EVTS" && type != "FRME" && type != "IMUS" && type != "TRIG") continue;
       std::string error;
       size_t size_out = 0;
-      if (!decompress(codec_, raw_.data(), raw_.size(), buf_, size_out, kMaxDecompressedBytes, error)) file_.failAt(at + 8, error);
+      if (!decompress(codec_, raw_.data(), raw_.size(), buf_, size_out, kMaxDecompressedBytes,
+                      error))
+        file_.failAt(at + 8, error);
       if (type == "EVTS") {
         const auto* packet = verifiedSizePrefixedRoot<fb4::EventPacket>(buf_, size_out, "EVTS");
-        if (packet == nullptr) file_.failAt(at + 8, "corrupt EVTS packet (FlatBuffer verification failed)");
+        if (packet == nullptr)
+          file_.failAt(at + 8, "corrupt EVTS packet (FlatBuffer verification failed)");
         if (packet->elements() == nullptr || packet->elements()->size() == 0) continue;
         events_ = packet->elements();
         next_ = 0;
@@ -246,18 +264,21 @@ class Aedat4Reader final : public EventReader {
       }
       if (type == "FRME") {
         const auto* frame = verifiedSizePrefixedRoot<fb4::Frame>(buf_, size_out, "FRME");
-        if (frame == nullptr) file_.failAt(at + 8, "corrupt FRME packet (FlatBuffer verification failed)");
+        if (frame == nullptr)
+          file_.failAt(at + 8, "corrupt FRME packet (FlatBuffer verification failed)");
         chunk.frames.push_back(toFrame(*frame, it->second, at));
         ++info_.counters["frames"];
         return true;
       }
       if (type == "IMUS") {
         const auto* imu = verifiedSizePrefixedRoot<fb4::ImuPacket>(buf_, size_out, "IMUS");
-        if (imu == nullptr) file_.failAt(at + 8, "corrupt IMUS packet (FlatBuffer verification failed)");
+        if (imu == nullptr)
+          file_.failAt(at + 8, "corrupt IMUS packet (FlatBuffer verification failed)");
         info_.counters["imu_samples"] += imu->elements() ? imu->elements()->size() : 0;
       } else {
         const auto* trig = verifiedSizePrefixedRoot<fb4::TriggerPacket>(buf_, size_out, "TRIG");
-        if (trig == nullptr) file_.failAt(at + 8, "corrupt TRIG packet (FlatBuffer verification failed)");
+        if (trig == nullptr)
+          file_.failAt(at + 8, "corrupt TRIG packet (FlatBuffer verification failed)");
         info_.counters["triggers"] += trig->elements() ? trig->elements()->size() : 0;
       }
     }
@@ -286,18 +307,21 @@ class Aedat4Reader final : public EventReader {
       out_t[i] = t;
       out_x[i] = static_cast<uint16_t>(x);
       out_y[i] = static_cast<uint16_t>(y);
-      out_p[i] = static_cast<int8_t>(2 * static_cast<int>(in[i].on()) - 1);  // branch-free: polarity is random
+      out_p[i] = static_cast<int8_t>(2 * static_cast<int>(in[i].on()) -
+                                     1);  // branch-free: polarity is random
     }
     if (bad) {
       for (size_t i = 0; i < n; ++i) {
         const fb4::Event* e = events_->Get(static_cast<flatbuffers::uoffset_t>(first + i));
         const std::string where = "event " + std::to_string(first + i) + " of the packet";
         if (e->x() < 0 || e->y() < 0 || e->x() >= w || e->y() >= h) {
-          file_.failAt(packet_at_, where + ": (x, y) = (" + std::to_string(e->x()) + ", " + std::to_string(e->y()) +
-                                       ") outside the " + std::to_string(w) + "x" + std::to_string(h) + " sensor");
+          file_.failAt(packet_at_, where + ": (x, y) = (" + std::to_string(e->x()) + ", " +
+                                       std::to_string(e->y()) + ") outside the " +
+                                       std::to_string(w) + "x" + std::to_string(h) + " sensor");
         }
         if (e->t() < last_t_) {
-          file_.failAt(packet_at_, where + ": timestamp " + std::to_string(e->t()) + " us goes back in time (previous " +
+          file_.failAt(packet_at_, where + ": timestamp " + std::to_string(e->t()) +
+                                       " us goes back in time (previous " +
                                        std::to_string(last_t_) + " us)");
         }
         last_t_ = e->t();
@@ -309,19 +333,36 @@ class Aedat4Reader final : public EventReader {
   Frame toFrame(const fb4::Frame& f, const StreamInfo& stream, int64_t at) {
     int channels = 1, depth = CV_8U;
     switch (f.format()) {
-      case fb4::FrameFormat::GRAY: break;
-      case fb4::FrameFormat::GRAY16: depth = CV_16U; break;
-      case fb4::FrameFormat::BGR: channels = 3; break;
-      case fb4::FrameFormat::BGR16: channels = 3; depth = CV_16U; break;
-      case fb4::FrameFormat::BGRA: channels = 4; break;
-      case fb4::FrameFormat::BGRA16: channels = 4; depth = CV_16U; break;
-      default: file_.failAt(at, "frame with unknown pixel format " + std::to_string(static_cast<int>(f.format())));
+      case fb4::FrameFormat::GRAY:
+        break;
+      case fb4::FrameFormat::GRAY16:
+        depth = CV_16U;
+        break;
+      case fb4::FrameFormat::BGR:
+        channels = 3;
+        break;
+      case fb4::FrameFormat::BGR16:
+        channels = 3;
+        depth = CV_16U;
+        break;
+      case fb4::FrameFormat::BGRA:
+        channels = 4;
+        break;
+      case fb4::FrameFormat::BGRA16:
+        channels = 4;
+        depth = CV_16U;
+        break;
+      default:
+        file_.failAt(
+            at, "frame with unknown pixel format " + std::to_string(static_cast<int>(f.format())));
     }
     const int w = f.width(), h = f.height();
     const size_t bytes_per = depth == CV_16U ? 2 : 1;
     if (w <= 0 || h <= 0 || f.pixels() == nullptr ||
-        f.pixels()->size() != static_cast<size_t>(w) * static_cast<size_t>(h) * static_cast<size_t>(channels) * bytes_per) {
-      file_.failAt(at, "frame of " + std::to_string(w) + "x" + std::to_string(h) + " pixels does not match its pixel data");
+        f.pixels()->size() != static_cast<size_t>(w) * static_cast<size_t>(h) *
+                                  static_cast<size_t>(channels) * bytes_per) {
+      file_.failAt(at, "frame of " + std::to_string(w) + "x" + std::to_string(h) +
+                           " pixels does not match its pixel data");
     }
     cv::Mat raw(h, w, CV_MAKETYPE(depth, channels));
     std::memcpy(raw.data, f.pixels()->data(), f.pixels()->size());
@@ -332,7 +373,8 @@ class Aedat4Reader final : public EventReader {
     raw.convertTo(image, CV_32F, depth == CV_16U ? 1.0 / 65535.0 : 1.0 / 255.0);
     const int ox = f.offset_x(), oy = f.offset_y();
     const int sw = stream.width, sh = stream.height;
-    if (sw > 0 && sh > 0 && ox >= 0 && oy >= 0 && ox + w <= sw && oy + h <= sh && (w != sw || h != sh)) {
+    if (sw > 0 && sh > 0 && ox >= 0 && oy >= 0 && ox + w <= sw && oy + h <= sh &&
+        (w != sw || h != sh)) {
       frame.image = cv::Mat::zeros(sh, sw, image.type());
       image.copyTo(frame.image(cv::Rect(ox, oy, w, h)));
     } else {
@@ -378,7 +420,9 @@ class Aedat4Writer final : public EventWriter {
     if (c != Compression::kLz4 && c != Compression::kZstd && c != Compression::kNone) {
       throwInFile(path, "AEDAT 4 compresses with lz4, zstd or none, not " + compressionName(c));
     }
-    codec_ = c == Compression::kZstd ? Codec::kZstd : c == Compression::kNone ? Codec::kNone : Codec::kLz4;
+    codec_ = c == Compression::kZstd   ? Codec::kZstd
+             : c == Compression::kNone ? Codec::kNone
+                                       : Codec::kLz4;
     level_ = codec_ == Codec::kZstd ? std::max(1, options.level) : 0;
     file_ = openFile(out_.temporaryPath(), "wb");
     if (!file_) throwInFile(path, "cannot open for writing");
@@ -392,8 +436,8 @@ class Aedat4Writer final : public EventWriter {
     for (size_t i = 0; i < events.size(); ++i) {
       max_x_ = std::max<int>(max_x_, events.x[i]);
       max_y_ = std::max<int>(max_y_, events.y[i]);
-      pending_.emplace_back(events.t[i], static_cast<int16_t>(events.x[i]), static_cast<int16_t>(events.y[i]),
-                            events.p[i] > 0);
+      pending_.emplace_back(events.t[i], static_cast<int16_t>(events.x[i]),
+                            static_cast<int16_t>(events.y[i]), events.p[i] > 0);
       if (pending_.size() == kEventsPerPacket) flushEvents();
     }
   }
@@ -401,12 +445,14 @@ class Aedat4Writer final : public EventWriter {
   void writeFrame(const Frame& frame) override {
     flushEvents();  // keep packets in time order
     const cv::Mat& img = frame.image;
-    if (img.empty() || (img.channels() != 1 && img.channels() != 3)) throwInFile(out_.finalPath(), "frame must be grey or colour");
+    if (img.empty() || (img.channels() != 1 && img.channels() != 3))
+      throwInFile(out_.finalPath(), "frame must be grey or colour");
     const int bits = frame.bit_depth == 16 ? 16 : 8;
     cv::Mat q = quantize(img, bits);
     if (!q.isContinuous()) q = q.clone();
-    fb4::FrameFormat format = img.channels() == 1 ? (bits == 16 ? fb4::FrameFormat::GRAY16 : fb4::FrameFormat::GRAY)
-                                                  : (bits == 16 ? fb4::FrameFormat::BGR16 : fb4::FrameFormat::BGR);
+    fb4::FrameFormat format = img.channels() == 1
+                                  ? (bits == 16 ? fb4::FrameFormat::GRAY16 : fb4::FrameFormat::GRAY)
+                                  : (bits == 16 ? fb4::FrameFormat::BGR16 : fb4::FrameFormat::BGR);
     flatbuffers::FlatBufferBuilder fbb(q.total() * q.elemSize() + 256);
     const auto pixels = fbb.CreateVector(q.data, q.total() * q.elemSize());
     fb4::FrameBuilder b(fbb);
@@ -431,15 +477,18 @@ class Aedat4Writer final : public EventWriter {
     std::vector<flatbuffers::Offset<fb4::FileDataDefinition>> defs;
     for (const Entry& e : table_) {
       const fb4::PacketHeader header(e.stream, e.size);
-      defs.push_back(fb4::CreateFileDataDefinition(fbb, e.offset, &header, e.count, e.t_start, e.t_end));
+      defs.push_back(
+          fb4::CreateFileDataDefinition(fbb, e.offset, &header, e.count, e.t_start, e.t_end));
     }
     fbb.FinishSizePrefixed(fb4::CreateFileDataTable(fbb, fbb.CreateVector(defs)), "FTAB");
     const int64_t table_at = offset_;
     compress(codec_, fbb.GetBufferPointer(), fbb.GetSize(), packed_, level_);
     put(packed_.data(), packed_.size());
     uint8_t le[8];
-    for (int i = 0; i < 8; ++i) le[i] = static_cast<uint8_t>(static_cast<uint64_t>(table_at) >> (8 * i));
-    bool ok = std::fseek(file_.get(), static_cast<long>(placeholder_at_), SEEK_SET) == 0 && std::fwrite(le, 1, 8, file_.get()) == 8;
+    for (int i = 0; i < 8; ++i)
+      le[i] = static_cast<uint8_t>(static_cast<uint64_t>(table_at) >> (8 * i));
+    bool ok = std::fseek(file_.get(), static_cast<long>(placeholder_at_), SEEK_SET) == 0 &&
+              std::fwrite(le, 1, 8, file_.get()) == 8;
     // Unknown sensor: the bounding box of the events (sizeX, sizeY alternate in the XML).
     for (size_t i = 0; i < size_patches_.size(); ++i) {
       const std::string text = padded(i % 2 == 0 ? max_x_ + 1 : max_y_ + 1);
@@ -466,7 +515,9 @@ class Aedat4Writer final : public EventWriter {
 
   void writeHeader() {
     const SensorSize s = sensor_;
-    const char* compression = codec_ == Codec::kLz4 ? "LZ4" : codec_ == Codec::kZstd ? "ZSTD" : "NONE";
+    const char* compression = codec_ == Codec::kLz4    ? "LZ4"
+                              : codec_ == Codec::kZstd ? "ZSTD"
+                                                       : "NONE";
     std::ostringstream x;
     const auto stream = [&](int id, const char* type, const char* name, const char* description) {
       const std::string base = "/mainloop/Recorder/outInfo/" + std::to_string(id) + "/";
@@ -474,7 +525,8 @@ class Aedat4Writer final : public EventWriter {
         << "            <attr key=\"compression\" type=\"string\">" << compression << "</attr>\n"
         << "            <attr key=\"originalModuleName\" type=\"string\">evkit</attr>\n"
         << "            <attr key=\"originalOutputName\" type=\"string\">" << name << "</attr>\n"
-        << "            <attr key=\"typeDescription\" type=\"string\">" << description << "</attr>\n"
+        << "            <attr key=\"typeDescription\" type=\"string\">" << description
+        << "</attr>\n"
         << "            <attr key=\"typeIdentifier\" type=\"string\">" << type << "</attr>\n"
         << "            <node name=\"info\" path=\"" << base << "info/\">\n"
         << "                <attr key=\"sizeX\" type=\"int\">" << padded(s.width) << "</attr>\n"
@@ -490,10 +542,11 @@ class Aedat4Writer final : public EventWriter {
     const std::string xml = x.str();
     flatbuffers::FlatBufferBuilder fbb;
     fbb.ForceDefaults(true);
-    const fb4::CompressionType type = codec_ == Codec::kLz4 ? fb4::CompressionType::LZ4
+    const fb4::CompressionType type = codec_ == Codec::kLz4    ? fb4::CompressionType::LZ4
                                       : codec_ == Codec::kZstd ? fb4::CompressionType::ZSTD
                                                                : fb4::CompressionType::NONE;
-    fbb.FinishSizePrefixed(fb4::CreateIOHeader(fbb, type, kPlaceholder, fbb.CreateString(xml)), "IOHE");
+    fbb.FinishSizePrefixed(fb4::CreateIOHeader(fbb, type, kPlaceholder, fbb.CreateString(xml)),
+                           "IOHE");
     const uint8_t* buf = fbb.GetBufferPointer();
     const size_t len = fbb.GetSize();
     // Find the placeholder to patch the data table position at close.
@@ -508,8 +561,10 @@ class Aedat4Writer final : public EventWriter {
       const std::string xml_head = xml.substr(0, 32);
       const uint8_t* xml_at = std::search(buf, buf + len, xml_head.begin(), xml_head.end());
       const std::string zero_size = ">    0</attr>";  // padded(0) between the tags
-      for (size_t at = xml.find(zero_size); at != std::string::npos; at = xml.find(zero_size, at + 1)) {
-        size_patches_.push_back(kMagicBytes + static_cast<int64_t>(xml_at - buf) + static_cast<int64_t>(at) + 1);
+      for (size_t at = xml.find(zero_size); at != std::string::npos;
+           at = xml.find(zero_size, at + 1)) {
+        size_patches_.push_back(kMagicBytes + static_cast<int64_t>(xml_at - buf) +
+                                static_cast<int64_t>(at) + 1);
       }
     }
     put(kMagic, kMagicBytes);  // then the size-prefixed header: its length field comes first
@@ -520,14 +575,18 @@ class Aedat4Writer final : public EventWriter {
   void flushEvents() {
     if (pending_.empty()) return;
     flatbuffers::FlatBufferBuilder fbb(pending_.size() * sizeof(fb4::Event) + 64);
-    fbb.FinishSizePrefixed(fb4::CreateEventPacket(fbb, fbb.CreateVectorOfStructs(pending_)), "EVTS");
-    writePacket(kEventStream, fbb, static_cast<int64_t>(pending_.size()), pending_.front().t(), pending_.back().t());
+    fbb.FinishSizePrefixed(fb4::CreateEventPacket(fbb, fbb.CreateVectorOfStructs(pending_)),
+                           "EVTS");
+    writePacket(kEventStream, fbb, static_cast<int64_t>(pending_.size()), pending_.front().t(),
+                pending_.back().t());
     pending_.clear();
   }
 
-  void writePacket(int32_t stream, const flatbuffers::FlatBufferBuilder& fbb, int64_t count, int64_t t0, int64_t t1) {
+  void writePacket(int32_t stream, const flatbuffers::FlatBufferBuilder& fbb, int64_t count,
+                   int64_t t0, int64_t t1) {
     compress(codec_, fbb.GetBufferPointer(), fbb.GetSize(), packed_, level_);
-    table_.push_back(Entry{offset_ + 8, stream, static_cast<int32_t>(packed_.size()), count, t0, t1});
+    table_.push_back(
+        Entry{offset_ + 8, stream, static_cast<int32_t>(packed_.size()), count, t0, t1});
     uint8_t h[8];
     for (int i = 0; i < 4; ++i) {
       h[i] = static_cast<uint8_t>(static_cast<uint32_t>(stream) >> (8 * i));
@@ -538,7 +597,8 @@ class Aedat4Writer final : public EventWriter {
   }
 
   void put(const void* data, size_t n) {
-    if (std::fwrite(data, 1, n, file_.get()) != n) throwInFile(out_.finalPath(), "write failed (disk full?)");
+    if (std::fwrite(data, 1, n, file_.get()) != n)
+      throwInFile(out_.finalPath(), "write failed (disk full?)");
     offset_ += static_cast<int64_t>(n);
   }
 

@@ -29,7 +29,8 @@ void BinaryFile::readExact(void* out, size_t n, const char* what) {
 }
 
 void BinaryFile::seek(int64_t offset) {
-  if (offset < 0 || offset > size_ || std::fseek(file_.get(), static_cast<long>(offset), SEEK_SET) != 0) {
+  if (offset < 0 || offset > size_ ||
+      std::fseek(file_.get(), static_cast<long>(offset), SEEK_SET) != 0) {
     failAt(offset, "seek outside the file");
   }
   offset_ = offset;
@@ -60,7 +61,9 @@ int BinaryFile::peek() {
 }
 
 void BinaryFile::fail(const std::string& what) const { throwAtByte(path_, offset_, what); }
-void BinaryFile::failAt(int64_t offset, const std::string& what) const { throwAtByte(path_, offset, what); }
+void BinaryFile::failAt(int64_t offset, const std::string& what) const {
+  throwAtByte(path_, offset, what);
+}
 
 SensorSizeGuess sensorSizeForCamera(const std::string& name) {
   std::string n = name;

@@ -52,7 +52,9 @@ inline uint32_t loadLe32(const uint8_t* p) {
 inline uint32_t loadBe32(const uint8_t* p) {
   return (uint32_t{p[0]} << 24) | (uint32_t{p[1]} << 16) | (uint32_t{p[2]} << 8) | uint32_t{p[3]};
 }
-inline uint64_t loadLe64(const uint8_t* p) { return uint64_t{loadLe32(p)} | (uint64_t{loadLe32(p + 4)} << 32); }
+inline uint64_t loadLe64(const uint8_t* p) {
+  return uint64_t{loadLe32(p)} | (uint64_t{loadLe32(p + 4)} << 32);
+}
 
 // Sensor size of a camera named in a header ("DAVIS240C", "Davis346red", "DVXplorer", ...);
 // unknown (0x0) when the name is not recognised.

@@ -4,8 +4,8 @@
 #include <fstream>
 #include <sstream>
 
-#include "evkit/events/atomic_file.h"
 #include "evkit/base/error.h"
+#include "evkit/events/atomic_file.h"
 
 namespace evkit {
 
@@ -27,12 +27,14 @@ Calibration readCalibration(const std::string& path) {
         v.push_back(std::stod(token, &used));
         if (used != token.size()) throw std::invalid_argument(token);
       } catch (const std::exception&) {
-        throwAtLine(path, line_no, "'" + token + "' is not a number (expected fx fy cx cy [k1 k2 p1 p2 [k3]])");
+        throwAtLine(path, line_no,
+                    "'" + token + "' is not a number (expected fx fy cx cy [k1 k2 p1 p2 [k3]])");
       }
     }
     if (v.size() != 4 && v.size() != 8 && v.size() != 9) {
-      throwAtLine(path, line_no, "expected 4, 8 or 9 numbers 'fx fy cx cy [k1 k2 p1 p2 [k3]]', found " +
-                                     std::to_string(v.size()));
+      throwAtLine(path, line_no,
+                  "expected 4, 8 or 9 numbers 'fx fy cx cy [k1 k2 p1 p2 [k3]]', found " +
+                      std::to_string(v.size()));
     }
     for (double x : v) {
       if (!std::isfinite(x)) throwAtLine(path, line_no, "non-finite value");

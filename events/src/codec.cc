@@ -20,7 +20,8 @@ void growTo(std::vector<uint8_t>& out, size_t n) {
 }
 
 // Doubles the output limit (up to max_output) when `produced` has reached it; false when it cannot.
-bool makeRoom(std::vector<uint8_t>& out, size_t produced, size_t& limit, size_t max_output, std::string& error) {
+bool makeRoom(std::vector<uint8_t>& out, size_t produced, size_t& limit, size_t max_output,
+              std::string& error) {
   if (produced < limit) return true;
   if (limit >= max_output) {
     error = "decompressed packet larger than " + std::to_string(max_output) + " bytes";
@@ -31,14 +32,15 @@ bool makeRoom(std::vector<uint8_t>& out, size_t produced, size_t& limit, size_t 
   return true;
 }
 
-bool decompressLz4(const uint8_t* in, size_t in_size, std::vector<uint8_t>& out, size_t& out_size, size_t max_output,
-                   std::string& error) {
+bool decompressLz4(const uint8_t* in, size_t in_size, std::vector<uint8_t>& out, size_t& out_size,
+                   size_t max_output, std::string& error) {
   LZ4F_dctx* raw = nullptr;
   if (LZ4F_isError(LZ4F_createDecompressionContext(&raw, LZ4F_VERSION))) {
     error = "cannot create an LZ4 context";
     return false;
   }
-  std::unique_ptr<LZ4F_dctx, decltype(&LZ4F_freeDecompressionContext)> ctx(raw, LZ4F_freeDecompressionContext);
+  std::unique_ptr<LZ4F_dctx, decltype(&LZ4F_freeDecompressionContext)> ctx(
+      raw, LZ4F_freeDecompressionContext);
   size_t consumed = 0;
   size_t limit = std::min<size_t>(max_output, std::max<size_t>(in_size * 4, 1 << 16));
   LZ4F_frameInfo_t frame_info;
@@ -46,7 +48,8 @@ bool decompressLz4(const uint8_t* in, size_t in_size, std::vector<uint8_t>& out,
   if (!LZ4F_isError(LZ4F_getFrameInfo(ctx.get(), &frame_info, in, &header_bytes))) {
     consumed = header_bytes;
     if (frame_info.contentSize > 0) {
-      limit = std::min<size_t>({max_output, static_cast<size_t>(frame_info.contentSize), in_size * kMaxLz4Ratio + 4096});
+      limit = std::min<size_t>(
+          {max_output, static_cast<size_t>(frame_info.contentSize), in_size * kMaxLz4Ratio + 4096});
     }
   }
   growTo(out, std::max<size_t>(limit, 1));
@@ -54,7 +57,8 @@ bool decompressLz4(const uint8_t* in, size_t in_size, std::vector<uint8_t>& out,
   while (true) {
     if (!makeRoom(out, produced, limit, max_output, error)) return false;
     size_t dst = limit - produced, src = in_size - consumed;
-    const size_t hint = LZ4F_decompress(ctx.get(), out.data() + produced, &dst, in + consumed, &src, nullptr);
+    const size_t hint =
+        LZ4F_decompress(ctx.get(), out.data() + produced, &dst, in + consumed, &src, nullptr);
     if (LZ4F_isError(hint)) {
       error = std::string("corrupt LZ4 data: ") + LZ4F_getErrorName(hint);
       return false;
@@ -71,9 +75,10 @@ bool decompressLz4(const uint8_t* in, size_t in_size, std::vector<uint8_t>& out,
   return true;
 }
 
-bool decompressZstd(const uint8_t* in, size_t in_size, std::vector<uint8_t>& out, size_t& out_size, size_t max_output,
-                    std::string& error) {
-  std::unique_ptr<ZSTD_DStream, decltype(&ZSTD_freeDStream)> ds(ZSTD_createDStream(), ZSTD_freeDStream);
+bool decompressZstd(const uint8_t* in, size_t in_size, std::vector<uint8_t>& out, size_t& out_size,
+                    size_t max_output, std::string& error) {
+  std::unique_ptr<ZSTD_DStream, decltype(&ZSTD_freeDStream)> ds(ZSTD_createDStream(),
+                                                                ZSTD_freeDStream);
   ZSTD_initDStream(ds.get());
   size_t limit = std::min<size_t>(max_output, std::max<size_t>(in_size * 8, 1 << 16));
   growTo(out, limit);
@@ -100,8 +105,8 @@ bool decompressZstd(const uint8_t* in, size_t in_size, std::vector<uint8_t>& out
 
 }  // namespace
 
-bool decompress(Codec codec, const uint8_t* in, size_t in_size, std::vector<uint8_t>& out, size_t& out_size,
-                size_t max_output, std::string& error) {
+bool decompress(Codec codec, const uint8_t* in, size_t in_size, std::vector<uint8_t>& out,
+                size_t& out_size, size_t max_output, std::string& error) {
   switch (codec) {
     case Codec::kNone:
       if (in_size > max_output) {
@@ -120,7 +125,8 @@ bool decompress(Codec codec, const uint8_t* in, size_t in_size, std::vector<uint
   return false;
 }
 
-void compress(Codec codec, const uint8_t* in, size_t in_size, std::vector<uint8_t>& out, int level) {
+void compress(Codec codec, const uint8_t* in, size_t in_size, std::vector<uint8_t>& out,
+              int level) {
   switch (codec) {
     case Codec::kNone:
       out.assign(in, in + in_size);

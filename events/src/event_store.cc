@@ -10,8 +10,8 @@ namespace evkit {
 EventSpan EventSpan::subspan(size_t begin, size_t end) const {
   assert(begin <= end && end <= size());
   const size_t n = end - begin;
-  return EventSpan{t.subspan(begin, n), x.subspan(begin, n), y.subspan(begin, n), p.subspan(begin, n),
-                   sensor};
+  return EventSpan{t.subspan(begin, n), x.subspan(begin, n), y.subspan(begin, n),
+                   p.subspan(begin, n), sensor};
 }
 
 size_t EventSpan::lowerBound(int64_t t_query) const {
@@ -82,8 +82,8 @@ void validate(const EventSpan& events, const std::string& source, size_t first_i
     const std::string at = "event " + std::to_string(first_index + i) + ": ";
     if (events.x[i] >= w || events.y[i] >= h) {
       throwInFile(source, at + "(x, y) = (" + std::to_string(events.x[i]) + ", " +
-                              std::to_string(events.y[i]) + ") lies outside the " + std::to_string(w) +
-                              "x" + std::to_string(h) + " sensor");
+                              std::to_string(events.y[i]) + ") lies outside the " +
+                              std::to_string(w) + "x" + std::to_string(h) + " sensor");
     }
     if (events.p[i] != 1 && events.p[i] != -1) {
       throwInFile(source, at + "polarity " + std::to_string(events.p[i]) + ", expected +1 or -1");

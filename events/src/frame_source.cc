@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
-
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
 
@@ -18,7 +17,8 @@ namespace {
 
 bool isVideo(const std::string& path) {
   std::string ext = fs::path(path).extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return std::tolower(c); });
   for (const char* v : {".mp4", ".avi", ".mkv", ".mov", ".webm", ".mpg", ".mpeg", ".m4v"}) {
     if (ext == v) return true;
   }
@@ -48,7 +48,9 @@ class ImageSequence final : public FrameSequence {
     frame.exposure_start_us = frame.exposure_end_us = t_us;
     return true;
   }
-  int64_t timeOf(size_t i) const override { return times_[std::min(i, times_.size() - 1)] + (i >= times_.size() ? 1 : 0); }
+  int64_t timeOf(size_t i) const override {
+    return times_[std::min(i, times_.size() - 1)] + (i >= times_.size() ? 1 : 0);
+  }
   size_t sizeHint() const override { return times_.size(); }
   SensorSize sensor() const override { return sensor_; }
 
@@ -62,11 +64,14 @@ class ImageSequence final : public FrameSequence {
 
 class VideoSequence final : public FrameSequence {
  public:
-  VideoSequence(const std::string& path, const SequenceOptions& options) : path_(path), options_(options) {
+  VideoSequence(const std::string& path, const SequenceOptions& options)
+      : path_(path), options_(options) {
     if (!fs::is_regular_file(path)) throwInFile(path, "no such video file");
-    if (!capture_.open(path)) throwInFile(path, "cannot open the video (unsupported codec or container?)");
+    if (!capture_.open(path))
+      throwInFile(path, "cannot open the video (unsupported codec or container?)");
     fps_ = options.fps > 0 ? options.fps : capture_.get(cv::CAP_PROP_FPS);
-    if (!(fps_ > 0) || !std::isfinite(fps_)) throwInFile(path, "the video states no frame rate; pass --fps");
+    if (!(fps_ > 0) || !std::isfinite(fps_))
+      throwInFile(path, "the video states no frame rate; pass --fps");
     count_ = static_cast<size_t>(std::max(0.0, capture_.get(cv::CAP_PROP_FRAME_COUNT)));
     sensor_ = SensorSize{static_cast<int>(capture_.get(cv::CAP_PROP_FRAME_WIDTH)),
                          static_cast<int>(capture_.get(cv::CAP_PROP_FRAME_HEIGHT))};
@@ -101,7 +106,8 @@ class VideoSequence final : public FrameSequence {
 void addScheduledExposures(const FrameSequence& seq, const DriverOptions& options,
                            std::vector<BlurAccumulator::Exposure>& exposures) {
   if (options.exposure_every <= 0) return;
-  const size_t span = static_cast<size_t>(std::max(1L, std::lround(options.duty * options.exposure_every)));
+  const size_t span =
+      static_cast<size_t>(std::max(1L, std::lround(options.duty * options.exposure_every)));
   for (size_t k = 0; k + span < seq.sizeHint(); k += static_cast<size_t>(options.exposure_every)) {
     exposures.push_back({seq.timeOf(k), seq.timeOf(k + span)});
   }
@@ -122,14 +128,19 @@ cv::Mat srgbToLinear(const cv::Mat& image) {
   return out;
 }
 
-std::unique_ptr<FrameSequence> openFrameSequence(const std::string& path, const SequenceOptions& options) {
+std::unique_ptr<FrameSequence> openFrameSequence(const std::string& path,
+                                                 const SequenceOptions& options) {
   std::error_code ec;
   if (fs::is_directory(path, ec)) {
-    for (const auto& [name, seconds] : {std::pair<const char*, bool>{"timestamps.txt", false}, {"images.txt", true}}) {
+    for (const auto& [name, seconds] :
+         {std::pair<const char*, bool>{"timestamps.txt", false}, {"images.txt", true}}) {
       const fs::path list = fs::path(path) / name;
-      if (fs::exists(list)) return std::make_unique<ImageSequence>(list.string(), seconds, options.srgb);
+      if (fs::exists(list))
+        return std::make_unique<ImageSequence>(list.string(), seconds, options.srgb);
     }
-    throwInFile(path, "a folder without timestamps.txt ('t_us path' lines) or images.txt ('t_seconds path')");
+    throwInFile(
+        path,
+        "a folder without timestamps.txt ('t_us path' lines) or images.txt ('t_seconds path')");
   }
   if (isVideo(path)) return std::make_unique<VideoSequence>(path, options);
   if (!fs::exists(path, ec)) throwInFile(path, "no such file or folder");
@@ -137,7 +148,8 @@ std::unique_ptr<FrameSequence> openFrameSequence(const std::string& path, const 
   return std::make_unique<ImageSequence>(path, seconds, options.srgb);
 }
 
-SimulatorStats simulateSequence(FrameSequence& sequence, const DriverOptions& options, const SimulationSink& sink) {
+SimulatorStats simulateSequence(FrameSequence& sequence, const DriverOptions& options,
+                                const SimulationSink& sink) {
   EventSimulator sim(sequence.sensor(), options.simulator);
   std::vector<BlurAccumulator::Exposure> exposures = options.exposures;
   addScheduledExposures(sequence, options, exposures);
@@ -165,8 +177,9 @@ SimulatorStats simulateSequence(FrameSequence& sequence, const DriverOptions& op
   return sim.stats();
 }
 
-SimulatorStats simulateAdaptive(RenderSource& source, int64_t t_begin_us, int64_t t_end_us, const DriverOptions& options,
-                                const AdaptiveOptions& adaptive, const SimulationSink& sink) {
+SimulatorStats simulateAdaptive(RenderSource& source, int64_t t_begin_us, int64_t t_end_us,
+                                const DriverOptions& options, const AdaptiveOptions& adaptive,
+                                const SimulationSink& sink) {
   EventSimulator sim(source.sensor(), options.simulator);
   BlurAccumulator blur(options.exposures);
   const double c_min = std::min(options.simulator.contrast_pos, options.simulator.contrast_neg);
@@ -193,7 +206,8 @@ SimulatorStats simulateAdaptive(RenderSource& source, int64_t t_begin_us, int64_
   const auto toLogImage = [&](const cv::Mat& img) {
     cv::Mat grey = toSensorIntensity(img, options.bayer_rggb), out(grey.size(), CV_32F);
     for (int y = 0; y < grey.rows; ++y) {
-      for (int x = 0; x < grey.cols; ++x) out.at<float>(y, x) = options.simulator.log.toLog(std::max(grey.at<float>(y, x), 0.0f));
+      for (int x = 0; x < grey.cols; ++x)
+        out.at<float>(y, x) = options.simulator.log.toLog(std::max(grey.at<float>(y, x), 0.0f));
     }
     return out;
   };
@@ -201,7 +215,8 @@ SimulatorStats simulateAdaptive(RenderSource& source, int64_t t_begin_us, int64_
   int64_t t = t_begin_us;
   int64_t step = adaptive.max_step_us;
   while (t < t_end_us) {
-    step = std::clamp<int64_t>(step, adaptive.min_step_us, std::max<int64_t>(adaptive.min_step_us, t_end_us - t));
+    step = std::clamp<int64_t>(step, adaptive.min_step_us,
+                               std::max<int64_t>(adaptive.min_step_us, t_end_us - t));
     const int64_t t_next = std::min(t + step, t_end_us);
     const cv::Mat candidate = source.render(t_next);
     const cv::Mat log_candidate = toLogImage(candidate);
@@ -218,7 +233,8 @@ SimulatorStats simulateAdaptive(RenderSource& source, int64_t t_begin_us, int64_
     t = t_next;
     // In double until clamped: limit / rate overflows int64 when the scene barely changes.
     const double ideal = rate > 0 ? limit / rate : static_cast<double>(adaptive.max_step_us);
-    step = static_cast<int64_t>(std::clamp(std::min(ideal, 2.0 * static_cast<double>(step)), static_cast<double>(adaptive.min_step_us),
+    step = static_cast<int64_t>(std::clamp(std::min(ideal, 2.0 * static_cast<double>(step)),
+                                           static_cast<double>(adaptive.min_step_us),
                                            static_cast<double>(adaptive.max_step_us)));
   }
   return sim.stats();

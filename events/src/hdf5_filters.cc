@@ -103,7 +103,8 @@ herr_t shuffleSetLocal(hid_t dcpl, hid_t type, hid_t /*space*/) {
   unsigned flags = 0;
   size_t n = 1;
   unsigned values[1] = {0};
-  if (H5Pget_filter_by_id2(dcpl, H5Z_FILTER_SHUFFLE, &flags, &n, values, 0, nullptr, nullptr) < 0) return -1;
+  if (H5Pget_filter_by_id2(dcpl, H5Z_FILTER_SHUFFLE, &flags, &n, values, 0, nullptr, nullptr) < 0)
+    return -1;
   values[0] = static_cast<unsigned>(H5Tget_size(type));
   return H5Pmodify_filter(dcpl, H5Z_FILTER_SHUFFLE, flags, 1, values);
 }
@@ -113,10 +114,12 @@ herr_t shuffleSetLocal(hid_t dcpl, hid_t type, hid_t /*space*/) {
 void useCheckedFilters() {
   static std::once_flag once;
   std::call_once(once, [] {
-    static const H5Z_class2_t deflate = {H5Z_CLASS_T_VERS, H5Z_FILTER_DEFLATE, 1, 1, "deflate (size-checked)",
-                                         nullptr, nullptr, deflateFilter};
-    static const H5Z_class2_t shuffle = {H5Z_CLASS_T_VERS, H5Z_FILTER_SHUFFLE, 1, 1, "shuffle (size-checked)",
-                                         nullptr, shuffleSetLocal, shuffleFilter};
+    static const H5Z_class2_t deflate = {
+        H5Z_CLASS_T_VERS, H5Z_FILTER_DEFLATE, 1, 1, "deflate (size-checked)", nullptr,
+        nullptr,          deflateFilter};
+    static const H5Z_class2_t shuffle = {
+        H5Z_CLASS_T_VERS, H5Z_FILTER_SHUFFLE, 1, 1, "shuffle (size-checked)", nullptr,
+        shuffleSetLocal,  shuffleFilter};
     H5Zregister(&deflate);
     H5Zregister(&shuffle);
   });

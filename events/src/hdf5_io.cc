@@ -12,19 +12,19 @@
 // All datasets are chunked and compressed (shuffle + deflate by default, or Blosc-LZ4).
 //
 // Also read:
-//   DSEC:        /events/{t (uint32 µs relative to /t_offset), x, y, p (0/1)}, /ms_to_idx, /t_offset
-//   event_utils: /events/{xs, ys, ts (float64 s), ps}, /images/image%09d with attribute timestamp (s),
+//   DSEC:        /events/{t (uint32 µs relative to /t_offset), x, y, p (0/1)}, /ms_to_idx,
+//   /t_offset event_utils: /events/{xs, ys, ts (float64 s), ps}, /images/image%09d with attribute
+//   timestamp (s),
 //                root attribute sensor_resolution (height, width)
 
 #include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
-
 #include <opencv2/imgproc.hpp>
 
-#include "evkit/events/atomic_file.h"
 #include "evkit/base/error.h"
+#include "evkit/events/atomic_file.h"
 #include "evkit/events/image_io.h"
 #include "formats.h"
 #include "hdf5_filters.h"
@@ -38,8 +38,8 @@ namespace {
 
 constexpr hsize_t kEventChunk = hsize_t{1} << 17;  // elements per HDF5 chunk of an event column
 constexpr size_t kChunkCacheBytes = size_t{32} << 20;
-constexpr unsigned kBloscFilter = 32001;           // registered HDF5 filter id of Blosc
-constexpr unsigned kBloscLz4 = 1;                  // Blosc compressor code of LZ4
+constexpr unsigned kBloscFilter = 32001;             // registered HDF5 filter id of Blosc
+constexpr unsigned kBloscLz4 = 1;                    // Blosc compressor code of LZ4
 constexpr int64_t kMaxMsIndexEntries = 100'000'000;  // > 27 h of recording: no index
 constexpr hsize_t kMaxFrames = 1'000'000;            // 14 h at 20 fps, 17 min at 1 kHz
 
@@ -76,15 +76,20 @@ class Hdf5Reader final : public EventReader {
     info_.format = Format::kHdf5;
     const hid_t f = file_.get();
     if (exists("events/t")) {
-      layout_ = attributeExists(f, "evkit_layout") || !exists("t_offset") ? Layout::kEvkit : Layout::kDsec;
+      layout_ = attributeExists(f, "evkit_layout") || !exists("t_offset") ? Layout::kEvkit
+                                                                          : Layout::kDsec;
       openColumns({"events/t", "events/x", "events/y", "events/p"});
     } else if (exists("events/ts")) {
       layout_ = Layout::kEventUtils;
       openColumns({"events/ts", "events/xs", "events/ys", "events/ps"});
     } else {
-      throwInFile(path_, "no dataset events/t or events/ts (expected the evkit, DSEC or event_utils layout)");
+      throwInFile(
+          path_,
+          "no dataset events/t or events/ts (expected the evkit, DSEC or event_utils layout)");
     }
-    info_.layout = layout_ == Layout::kEvkit ? "evkit" : layout_ == Layout::kDsec ? "dsec" : "event_utils";
+    info_.layout = layout_ == Layout::kEvkit  ? "evkit"
+                   : layout_ == Layout::kDsec ? "dsec"
+                                              : "event_utils";
     info_.event_count = static_cast<int64_t>(count_);
     readSensorSize();
     readTimeIndex();
@@ -103,8 +108,10 @@ class Hdf5Reader final : public EventReader {
       ev.y.resize(base + n);
       ev.p.resize(base + n);
       readTimes(next_, n, ev.t.data() + base);
-      readRange(columns_[1].get(), H5T_NATIVE_UINT16, next_, n, ev.x.data() + base, path_, names_[1]);
-      readRange(columns_[2].get(), H5T_NATIVE_UINT16, next_, n, ev.y.data() + base, path_, names_[2]);
+      readRange(columns_[1].get(), H5T_NATIVE_UINT16, next_, n, ev.x.data() + base, path_,
+                names_[1]);
+      readRange(columns_[2].get(), H5T_NATIVE_UINT16, next_, n, ev.y.data() + base, path_,
+                names_[2]);
       readRange(columns_[3].get(), H5T_NATIVE_INT8, next_, n, ev.p.data() + base, path_, names_[3]);
       checkEvents(ev, base);
       next_ += n;
@@ -133,12 +140,16 @@ class Hdf5Reader final : public EventReader {
         const hsize_t mid = lo + (hi - lo) / 2;
         int64_t t;
         readTimes(mid, 1, &t);
-        if (t < t_begin) lo = mid + 1; else hi = mid;
+        if (t < t_begin)
+          lo = mid + 1;
+        else
+          hi = mid;
       }
       index = lo;
     }
     next_ = std::max(next_, index);
-    while (next_frame_ < frame_starts_.size() && frame_starts_[next_frame_] < t_begin) ++next_frame_;
+    while (next_frame_ < frame_starts_.size() && frame_starts_[next_frame_] < t_begin)
+      ++next_frame_;
   }
 
  private:
@@ -171,7 +182,8 @@ class Hdf5Reader final : public EventReader {
       names_[i] = name;
       columns_[i] = open(name);
       const auto shape = datasetShape(columns_[i].get());
-      if (shape.size() != 1) throwInFile(path_, std::string("dataset ") + name + " is not one-dimensional");
+      if (shape.size() != 1)
+        throwInFile(path_, std::string("dataset ") + name + " is not one-dimensional");
       if (i == 0) count_ = shape[0];
       if (shape[0] != count_) {
         throwInFile(path_, std::string("dataset ") + name + " holds " + std::to_string(shape[0]) +
@@ -182,7 +194,8 @@ class Hdf5Reader final : public EventReader {
     if (layout_ == Layout::kDsec) {
       H5Handle off = open("t_offset");
       const ChunkSizeScope chunk_size(off.get());
-      if (H5Dread(off.get(), H5T_NATIVE_INT64, H5S_ALL, H5S_ALL, H5P_DEFAULT, &t_offset_dsec_) < 0) {
+      if (H5Dread(off.get(), H5T_NATIVE_INT64, H5S_ALL, H5S_ALL, H5P_DEFAULT, &t_offset_dsec_) <
+          0) {
         throwInFile(path_, "cannot read t_offset");
       }
     }
@@ -199,10 +212,12 @@ class Hdf5Reader final : public EventReader {
         break;
       case Layout::kEventUtils: {
         seconds_.resize(n);
-        readRange(columns_[0].get(), H5T_NATIVE_DOUBLE, begin, n, seconds_.data(), path_, names_[0]);
+        readRange(columns_[0].get(), H5T_NATIVE_DOUBLE, begin, n, seconds_.data(), path_,
+                  names_[0]);
         for (hsize_t i = 0; i < n; ++i) {
           if (!std::isfinite(seconds_[i]) || std::abs(seconds_[i]) > 9e12) {
-            throwInFile(path_, names_[0] + "[" + std::to_string(begin + i) + "]: not a finite time in seconds");
+            throwInFile(path_, names_[0] + "[" + std::to_string(begin + i) +
+                                   "]: not a finite time in seconds");
           }
           out[i] = std::llround(seconds_[i] * 1e6);
         }
@@ -214,7 +229,8 @@ class Hdf5Reader final : public EventReader {
   void checkEvents(EventStore& ev, size_t base) {
     const size_t n = ev.size();
     if (layout_ != Layout::kEvkit) {
-      for (size_t i = base; i < n; ++i) ev.p[i] = ev.p[i] > 0 ? 1 : -1;  // 0/1 (or bool) in the file
+      for (size_t i = base; i < n; ++i)
+        ev.p[i] = ev.p[i] > 0 ? 1 : -1;  // 0/1 (or bool) in the file
     }
     validate(ev.view().subspan(base, n), path_, next_, last_t_);
     if (n > base) last_t_ = ev.t.back();
@@ -227,7 +243,8 @@ class Hdf5Reader final : public EventReader {
                                 static_cast<int>(readIntAttribute(f, "sensor_height", path_))};
     } else if (attributeExists(f, "sensor_resolution")) {
       const auto res = readIntArrayAttribute(f, "sensor_resolution", path_);  // (height, width)
-      if (res.size() == 2) info_.sensor = SensorSize{static_cast<int>(res[1]), static_cast<int>(res[0])};
+      if (res.size() == 2)
+        info_.sensor = SensorSize{static_cast<int>(res[1]), static_cast<int>(res[0])};
     }
     if (info_.sensor.known()) {
       if (info_.sensor.width > 65536 || info_.sensor.height > 65536) {
@@ -290,7 +307,8 @@ class Hdf5Reader final : public EventReader {
       }
       const hsize_t n = frame_shape_[0];
       // A damaged dataspace can claim any count; no recording holds this many frames.
-      if (n > kMaxFrames) throwInFile(path_, "frames/images claims " + std::to_string(n) + " frames");
+      if (n > kMaxFrames)
+        throwInFile(path_, "frames/images claims " + std::to_string(n) + " frames");
       for (const char* name : {"frames/exposure_start", "frames/exposure_end"}) {
         H5Handle ds = open(name);
         const auto shape = datasetShape(ds.get());
@@ -319,7 +337,8 @@ class Hdf5Reader final : public EventReader {
         H5Handle attr(H5Aopen(ds.get(), "timestamp", H5P_DEFAULT));
         double ts = 0;
         H5Aread(attr.get(), H5T_NATIVE_DOUBLE, &ts);
-        if (!std::isfinite(ts)) throwInFile(path_, std::string("images/") + name + ": timestamp is not finite");
+        if (!std::isfinite(ts))
+          throwInFile(path_, std::string("images/") + name + ": timestamp is not finite");
         event_utils_images_.emplace_back(std::llround(ts * 1e6), std::string("images/") + name);
       }
       std::sort(event_utils_images_.begin(), event_utils_images_.end());
@@ -344,18 +363,21 @@ class Hdf5Reader final : public EventReader {
       start[0] = i;
       count[0] = 1;
       H5Handle mem_space(H5Screate_simple(static_cast<int>(count.size()), count.data(), nullptr));
-      H5Sselect_hyperslab(file_space.get(), H5S_SELECT_SET, start.data(), nullptr, count.data(), nullptr);
+      H5Sselect_hyperslab(file_space.get(), H5S_SELECT_SET, start.data(), nullptr, count.data(),
+                          nullptr);
       const ChunkSizeScope chunk_size(images_.get());
-      if (H5Dread(images_.get(), frame_bits_ == 16 ? H5T_NATIVE_UINT16 : H5T_NATIVE_UINT8, mem_space.get(),
-                  file_space.get(), H5P_DEFAULT, raw.data) < 0) {
-        throwInFile(path_, "cannot read frames/images[" + std::to_string(i) + "] (truncated or corrupt?)");
+      if (H5Dread(images_.get(), frame_bits_ == 16 ? H5T_NATIVE_UINT16 : H5T_NATIVE_UINT8,
+                  mem_space.get(), file_space.get(), H5P_DEFAULT, raw.data) < 0) {
+        throwInFile(path_,
+                    "cannot read frames/images[" + std::to_string(i) + "] (truncated or corrupt?)");
       }
       if (c == 3) cv::cvtColor(raw, raw, cv::COLOR_RGB2BGR);
     } else {
       const std::string& name = event_utils_images_[i].second;
       H5Handle ds = open(name);
       const auto shape = datasetShape(ds.get());
-      if ((shape.size() != 2 && !(shape.size() == 3 && shape[2] == 3)) || shape[0] > 65536 || shape[1] > 65536) {
+      if ((shape.size() != 2 && !(shape.size() == 3 && shape[2] == 3)) || shape[0] > 65536 ||
+          shape[1] > 65536) {
         throwInFile(path_, name + " must be (H, W) or (H, W, 3)");
       }
       H5Handle type(H5Dget_type(ds.get()));
@@ -363,8 +385,8 @@ class Hdf5Reader final : public EventReader {
       raw.create(static_cast<int>(shape[0]), static_cast<int>(shape[1]),
                  CV_MAKETYPE(wide ? CV_16U : CV_8U, shape.size() == 3 ? 3 : 1));
       const ChunkSizeScope chunk_size(ds.get());
-      if (H5Dread(ds.get(), wide ? H5T_NATIVE_UINT16 : H5T_NATIVE_UINT8, H5S_ALL, H5S_ALL, H5P_DEFAULT,
-                  raw.data) < 0) {
+      if (H5Dread(ds.get(), wide ? H5T_NATIVE_UINT16 : H5T_NATIVE_UINT8, H5S_ALL, H5S_ALL,
+                  H5P_DEFAULT, raw.data) < 0) {
         throwInFile(path_, "cannot read " + name);
       }
       if (raw.channels() == 3) cv::cvtColor(raw, raw, cv::COLOR_RGB2BGR);
@@ -402,7 +424,8 @@ bool bloscAvailable() { return H5Zfilter_avail(kBloscFilter) > 0; }
 
 void applyCompression(hid_t dcpl, const WriterOptions& options, const std::string& path) {
   const Compression compression =
-      options.compression ? *options.compression : (bloscAvailable() ? Compression::kBloscLz4 : Compression::kDeflate);
+      options.compression ? *options.compression
+                          : (bloscAvailable() ? Compression::kBloscLz4 : Compression::kDeflate);
   switch (compression) {
     case Compression::kNone:
       break;
@@ -412,17 +435,20 @@ void applyCompression(hid_t dcpl, const WriterOptions& options, const std::strin
       break;
     case Compression::kBloscLz4: {
       if (!bloscAvailable()) {
-        throwInFile(path, "the Blosc HDF5 filter plugin is not installed (Debian: hdf5-filter-plugin); "
-                          "use --compression deflate");
+        throwInFile(path,
+                    "the Blosc HDF5 filter plugin is not installed (Debian: hdf5-filter-plugin); "
+                    "use --compression deflate");
       }
       // cd_values: 4 reserved (filled by the filter), level, shuffle, compressor.
-      const unsigned cd[7] = {0, 0, 0, 0, static_cast<unsigned>(std::clamp(options.level, 0, 9)), 1, kBloscLz4};
+      const unsigned cd[7] = {
+          0, 0, 0, 0, static_cast<unsigned>(std::clamp(options.level, 0, 9)), 1, kBloscLz4};
       H5Pset_filter(dcpl, kBloscFilter, H5Z_FLAG_MANDATORY, 7, cd);
       break;
     }
     case Compression::kLz4:
     case Compression::kZstd:
-      throwInFile(path, "HDF5 compresses with blosc-lz4, deflate or none, not " + compressionName(compression));
+      throwInFile(path, "HDF5 compresses with blosc-lz4, deflate or none, not " +
+                            compressionName(compression));
   }
 }
 
@@ -436,18 +462,21 @@ class Hdf5Writer final : public EventWriter {
       : out_(path), sensor_(sensor), options_(options), buffer_(sensor) {
     silenceHdf5Errors();
     useCheckedFilters();  // the same streams as the built-in filters: round trips test them
-    file_ = H5Handle(H5Fcreate(out_.temporaryPath().c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT));
+    file_ =
+        H5Handle(H5Fcreate(out_.temporaryPath().c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT));
     if (!file_) throwInFile(path, "cannot create HDF5 file");
     H5Handle group(H5Gcreate2(file_.get(), "events", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT));
     const hid_t types[4] = {H5T_STD_I64LE, H5T_STD_U16LE, H5T_STD_U16LE, H5T_STD_I8LE};
     const char* names[4] = {"events/t", "events/x", "events/y", "events/p"};
-    for (int i = 0; i < 4; ++i) columns_[i] = createExtendible(names[i], types[i], 1, &kEventChunk, options_);
+    for (int i = 0; i < 4; ++i)
+      columns_[i] = createExtendible(names[i], types[i], 1, &kEventChunk, options_);
     buffer_.reserve(kEventChunk);
   }
 
   void write(const EventSpan& events) override {
     for (size_t begin = 0; begin < events.size();) {
-      const size_t n = std::min(events.size() - begin, static_cast<size_t>(kEventChunk) - buffer_.size());
+      const size_t n =
+          std::min(events.size() - begin, static_cast<size_t>(kEventChunk) - buffer_.size());
       const EventSpan part = events.subspan(begin, begin + n);
       check(part);
       buffer_.append(part);
@@ -459,7 +488,8 @@ class Hdf5Writer final : public EventWriter {
   void writeFrame(const Frame& frame) override {
     const cv::Mat& img = frame.image;
     const int c = img.channels();
-    if (img.empty() || (c != 1 && c != 3)) throwInFile(out_.finalPath(), "frame must be grey or colour");
+    if (img.empty() || (c != 1 && c != 3))
+      throwInFile(out_.finalPath(), "frame must be grey or colour");
     if (!images_) {
       H5Handle group(H5Gcreate2(file_.get(), "frames", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT));
       frame_bits_ = frame.bit_depth == 16 ? 16 : 8;
@@ -470,18 +500,22 @@ class Hdf5Writer final : public EventWriter {
       images_ = createExtendible("frames/images", frame_bits_ == 16 ? H5T_STD_U16LE : H5T_STD_U8LE,
                                  static_cast<int>(chunk.size()), chunk.data(), kSmallDataOptions);
       const hsize_t one = 64;
-      starts_ds_ = createExtendible("frames/exposure_start", H5T_STD_I64LE, 1, &one, kSmallDataOptions);
+      starts_ds_ =
+          createExtendible("frames/exposure_start", H5T_STD_I64LE, 1, &one, kSmallDataOptions);
       ends_ds_ = createExtendible("frames/exposure_end", H5T_STD_I64LE, 1, &one, kSmallDataOptions);
     } else if (static_cast<hsize_t>(img.rows) != frame_dims_[1] ||
-               static_cast<hsize_t>(img.cols) != frame_dims_[2] || (c == 3) != (frame_dims_.size() == 4)) {
-      throwInFile(out_.finalPath(), "all frames of a recording must have the same size and channels");
+               static_cast<hsize_t>(img.cols) != frame_dims_[2] ||
+               (c == 3) != (frame_dims_.size() == 4)) {
+      throwInFile(out_.finalPath(),
+                  "all frames of a recording must have the same size and channels");
     }
     cv::Mat q = quantize(img, frame_bits_);
     if (c == 3) cv::cvtColor(q, q, cv::COLOR_BGR2RGB);
     if (!q.isContinuous()) q = q.clone();
     std::vector<hsize_t> count = frame_dims_;
     count[0] = 1;
-    appendRows(images_.get(), frame_bits_ == 16 ? H5T_NATIVE_UINT16 : H5T_NATIVE_UINT8, frame_count_, count, q.data);
+    appendRows(images_.get(), frame_bits_ == 16 ? H5T_NATIVE_UINT16 : H5T_NATIVE_UINT8,
+               frame_count_, count, q.data);
     const std::vector<hsize_t> one{1};
     appendRows(starts_ds_.get(), H5T_NATIVE_INT64, frame_count_, one, &frame.exposure_start_us);
     appendRows(ends_ds_.get(), H5T_NATIVE_INT64, frame_count_, one, &frame.exposure_end_us);
@@ -500,17 +534,21 @@ class Hdf5Writer final : public EventWriter {
     if (index_valid_) {
       const hsize_t n = ms_to_idx_.size();
       const hsize_t chunk = std::clamp<hsize_t>(n, 1, 1 << 16);
-      H5Handle ds = createExtendible("events/ms_to_idx", H5T_STD_U64LE, 1, &chunk, kSmallDataOptions);
+      H5Handle ds =
+          createExtendible("events/ms_to_idx", H5T_STD_U64LE, 1, &chunk, kSmallDataOptions);
       appendRows(ds.get(), H5T_NATIVE_UINT64, 0, {n}, ms_to_idx_.data());
       writeIntAttribute(ds.get(), "t_offset", t_offset_);
     }
     // Chunks are compressed and written when a dataset closes: a failure shows up only here.
     bool ok = true;
-    for (H5Handle* ds : {&columns_[0], &columns_[1], &columns_[2], &columns_[3], &images_, &starts_ds_, &ends_ds_}) {
+    for (H5Handle* ds : {&columns_[0], &columns_[1], &columns_[2], &columns_[3], &images_,
+                         &starts_ds_, &ends_ds_}) {
       if (ds->valid()) ok &= H5Dclose(ds->release()) >= 0;
     }
     ok &= H5Fclose(file_.release()) >= 0;
-    if (!ok) throwInFile(out_.finalPath(), "cannot finish the HDF5 file (disk full, or a compression filter failed)");
+    if (!ok)
+      throwInFile(out_.finalPath(),
+                  "cannot finish the HDF5 file (disk full, or a compression filter failed)");
     out_.commit();
   }
 
@@ -524,12 +562,14 @@ class Hdf5Writer final : public EventWriter {
     H5Handle dcpl(H5Pcreate(H5P_DATASET_CREATE));
     H5Pset_chunk(dcpl.get(), rank, chunk);
     applyCompression(dcpl.get(), compression, out_.finalPath());
-    H5Handle ds(H5Dcreate2(file_.get(), name, type, space.get(), H5P_DEFAULT, dcpl.get(), H5P_DEFAULT));
+    H5Handle ds(
+        H5Dcreate2(file_.get(), name, type, space.get(), H5P_DEFAULT, dcpl.get(), H5P_DEFAULT));
     if (!ds) throwInFile(out_.finalPath(), std::string("cannot create dataset ") + name);
     return ds;
   }
 
-  void appendRows(hid_t ds, hid_t mem_type, hsize_t at, std::vector<hsize_t> count, const void* data) {
+  void appendRows(hid_t ds, hid_t mem_type, hsize_t at, std::vector<hsize_t> count,
+                  const void* data) {
     std::vector<hsize_t> dims = count;
     dims[0] = at + count[0];
     std::vector<hsize_t> start(count.size(), 0);
@@ -537,7 +577,8 @@ class Hdf5Writer final : public EventWriter {
     if (H5Dset_extent(ds, dims.data()) < 0) throwInFile(out_.finalPath(), "cannot extend dataset");
     H5Handle file_space(H5Dget_space(ds));
     H5Handle mem_space(H5Screate_simple(static_cast<int>(count.size()), count.data(), nullptr));
-    if (H5Sselect_hyperslab(file_space.get(), H5S_SELECT_SET, start.data(), nullptr, count.data(), nullptr) < 0 ||
+    if (H5Sselect_hyperslab(file_space.get(), H5S_SELECT_SET, start.data(), nullptr, count.data(),
+                            nullptr) < 0 ||
         H5Dwrite(ds, mem_type, mem_space.get(), file_space.get(), H5P_DEFAULT, data) < 0) {
       throwInFile(out_.finalPath(), "HDF5 write failed (disk full?)");
     }
@@ -548,21 +589,25 @@ class Hdf5Writer final : public EventWriter {
       const int64_t t = part.t[i];
       const size_t index = written_ + buffer_.size() + i;
       if (t < last_t_) {
-        throwInFile(out_.finalPath(), "event " + std::to_string(index) + ": timestamp " + std::to_string(t) +
+        throwInFile(out_.finalPath(), "event " + std::to_string(index) + ": timestamp " +
+                                          std::to_string(t) +
                                           " us goes back in time; events must be sorted");
       }
       if (part.p[i] != 1 && part.p[i] != -1) {
-        throwInFile(out_.finalPath(), "event " + std::to_string(index) + ": polarity must be +1 or -1");
+        throwInFile(out_.finalPath(),
+                    "event " + std::to_string(index) + ": polarity must be +1 or -1");
       }
       if (sensor_.known() && !sensor_.contains(part.x[i], part.y[i])) {
-        throwInFile(out_.finalPath(), "event " + std::to_string(index) + " lies outside the sensor");
+        throwInFile(out_.finalPath(),
+                    "event " + std::to_string(index) + " lies outside the sensor");
       }
       max_x_ = std::max<int>(max_x_, part.x[i]);
       max_y_ = std::max<int>(max_y_, part.y[i]);
       // ms_to_idx[k] = first index with t >= t_offset + 1000 k.
       if (index == 0) t_offset_ = floorDiv(t, 1000) * 1000;
       if (index_valid_) {
-        const int64_t k_needed = floorDiv(t - t_offset_, 1000);  // entries 0..k_needed point here or before
+        const int64_t k_needed =
+            floorDiv(t - t_offset_, 1000);  // entries 0..k_needed point here or before
         if (k_needed >= kMaxMsIndexEntries) {
           index_valid_ = false;
           ms_to_idx_.clear();

@@ -18,7 +18,7 @@ constexpr int kAttribute = 0x0c;
 constexpr int kVariableLength = 9;  // datatype class
 constexpr int kSymbolTable = 0x11;
 constexpr int kChunkedLayout = 2;
-constexpr size_t kMaxChunks = 4096;        // object header chunks of one object
+constexpr size_t kMaxChunks = 4096;         // object header chunks of one object
 constexpr size_t kMaxIndexNodes = 1 << 16;  // chunk B-tree nodes of one dataset
 
 uint64_t loadLe(const uint8_t* p, int bytes) {
@@ -28,7 +28,8 @@ uint64_t loadLe(const uint8_t* p, int bytes) {
 }
 
 bool undefinedAddress(uint64_t address, int offset_bytes) {
-  return offset_bytes == 8 ? address == ~uint64_t{0} : address == (uint64_t{1} << (8 * offset_bytes)) - 1;
+  return offset_bytes == 8 ? address == ~uint64_t{0}
+                           : address == (uint64_t{1} << (8 * offset_bytes)) - 1;
 }
 
 }  // namespace
@@ -38,7 +39,8 @@ Hdf5Precheck::Hdf5Precheck(std::string path) : path_(std::move(path)) {
   file_size_ = file.size();
   // The superblock sits at 0, 512, 1024, 2048, ... (a user block may come first).
   int64_t at = -1;
-  for (int64_t candidate = 0; candidate + 8 <= file_size_; candidate = candidate == 0 ? 512 : candidate * 2) {
+  for (int64_t candidate = 0; candidate + 8 <= file_size_;
+       candidate = candidate == 0 ? 512 : candidate * 2) {
     uint8_t signature[8];
     file.seek(candidate);
     file.readExact(signature, 8, "the HDF5 signature");
@@ -68,15 +70,17 @@ Hdf5Precheck::Hdf5Precheck(std::string path) : path_(std::move(path)) {
   }
   const auto usable = [](int bytes) { return bytes == 2 || bytes == 4 || bytes == 8; };
   if (!usable(offset_bytes) || !usable(length_bytes_)) {
-    file.failAt(at + 9, "HDF5 superblock with " + std::to_string(offset_bytes) + "-byte addresses and " +
-                            std::to_string(length_bytes_) + "-byte lengths");
+    file.failAt(at + 9, "HDF5 superblock with " + std::to_string(offset_bytes) +
+                            "-byte addresses and " + std::to_string(length_bytes_) +
+                            "-byte lengths");
   }
   // v0/v1: base, free space, end of file, driver info, then the root group's symbol table entry
   // (link name offset, object header address); v2/v3: base, extension, end of file, root group.
   const size_t root_field = fields + static_cast<size_t>(offset_bytes) * (version <= 1 ? 5 : 3);
   if (root_field + offset_bytes > got) file.failAt(at, "truncated HDF5 superblock");
   base_ = loadLe(sb + fields, offset_bytes);
-  if (base_ > static_cast<uint64_t>(file_size_)) file.failAt(at + static_cast<int64_t>(fields), "HDF5 base address past the end of the file");
+  if (base_ > static_cast<uint64_t>(file_size_))
+    file.failAt(at + static_cast<int64_t>(fields), "HDF5 base address past the end of the file");
   offset_bytes_ = offset_bytes;
   checkObjectHeader(loadLe(sb + root_field, offset_bytes), "the root group");
 }
@@ -87,12 +91,14 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
   };
   // A chunk lies inside the file; its bytes are read (chunks are small in real files).
   const auto inFile = [&](uint64_t relative, uint64_t length, int64_t cited) -> int64_t {
-    if (undefinedAddress(relative, offset_bytes_) || relative > static_cast<uint64_t>(file_size_) - base_ ||
+    if (undefinedAddress(relative, offset_bytes_) ||
+        relative > static_cast<uint64_t>(file_size_) - base_ ||
         length > static_cast<uint64_t>(file_size_) - base_ - relative) {
-      fail(cited, "a chunk of " + std::to_string(length) + " bytes at address " + std::to_string(relative) +
-                      " lies outside the file");
+      fail(cited, "a chunk of " + std::to_string(length) + " bytes at address " +
+                      std::to_string(relative) + " lies outside the file");
     }
-    if (length > kMaxHdf5ChunkBytes) fail(cited, "a chunk of " + std::to_string(length) + " bytes (implausible)");
+    if (length > kMaxHdf5ChunkBytes)
+      fail(cited, "a chunk of " + std::to_string(length) + " bytes (implausible)");
     return static_cast<int64_t>(base_ + relative);
   };
   BinaryFile file(path_);
@@ -145,19 +151,23 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
       const int type = version == 1 ? loadLe(&chunk[pos], 2) : chunk[pos];
       const uint64_t size = version == 1 ? loadLe(&chunk[pos + 2], 2) : loadLe(&chunk[pos + 1], 2);
       const size_t data = pos + header_bytes;
-      if (size > chunk.size() - data) fail(c.at + static_cast<int64_t>(pos), "a message runs past its chunk");
+      if (size > chunk.size() - data)
+        fail(c.at + static_cast<int64_t>(pos), "a message runs past its chunk");
       if (type == kContinuation) {
-        if (size < static_cast<uint64_t>(offset_bytes_ + length_bytes_)) fail(c.at + static_cast<int64_t>(pos), "a short continuation message");
+        if (size < static_cast<uint64_t>(offset_bytes_ + length_bytes_))
+          fail(c.at + static_cast<int64_t>(pos), "a short continuation message");
         const uint64_t next = loadLe(&chunk[data], offset_bytes_);
         const uint64_t length = loadLe(&chunk[data + offset_bytes_], length_bytes_);
         int64_t next_at = inFile(next, length, c.at + static_cast<int64_t>(pos));
         uint64_t next_bytes = length;
         if (version == 2) {  // "OCHK", the messages, a checksum
-          if (length < 8) fail(next_at, "a continuation chunk of " + std::to_string(length) + " bytes");
+          if (length < 8)
+            fail(next_at, "a continuation chunk of " + std::to_string(length) + " bytes");
           next_at += 4;
           next_bytes -= 8;
         }
-        if (seen.size() > kMaxChunks) fail(at, "more than " + std::to_string(kMaxChunks) + " chunks");
+        if (seen.size() > kMaxChunks)
+          fail(at, "more than " + std::to_string(kMaxChunks) + " chunks");
         if (seen.insert(next_at).second) pending.push_back({next_at, next_bytes});
       } else if (type == kDatatype) {
         checkDatatype(&chunk[data], size, c.at + static_cast<int64_t>(data), what);
@@ -168,7 +178,8 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
       } else if (type == kSymbolTable) {
         // An old-style group: a B-tree of symbol nodes and the local heap of their names; the
         // library loads the heap's data segment at its stated size.
-        if (size < static_cast<uint64_t>(2 * offset_bytes_)) fail(c.at + static_cast<int64_t>(pos), "a short symbol table message");
+        if (size < static_cast<uint64_t>(2 * offset_bytes_))
+          fail(c.at + static_cast<int64_t>(pos), "a short symbol table message");
         checkLocalHeap(loadLe(&chunk[data + offset_bytes_], offset_bytes_), what);
       }
       pos = data + size;
@@ -182,10 +193,13 @@ void Hdf5Precheck::checkLocalHeap(uint64_t address, const std::string& what) con
   const auto fail = [&](int64_t at, const std::string& problem) {
     throwAtByte(path_, at, "local heap of " + what + ": " + problem);
   };
-  const size_t prefix = 8 + 2 * static_cast<size_t>(length_bytes_) + static_cast<size_t>(offset_bytes_);
-  if (undefinedAddress(address, offset_bytes_) || address > static_cast<uint64_t>(file_size_) - base_ ||
+  const size_t prefix =
+      8 + 2 * static_cast<size_t>(length_bytes_) + static_cast<size_t>(offset_bytes_);
+  if (undefinedAddress(address, offset_bytes_) ||
+      address > static_cast<uint64_t>(file_size_) - base_ ||
       prefix > static_cast<uint64_t>(file_size_) - base_ - address) {
-    fail(static_cast<int64_t>(base_), "address " + std::to_string(address) + " lies outside the file");
+    fail(static_cast<int64_t>(base_),
+         "address " + std::to_string(address) + " lies outside the file");
   }
   const int64_t at = static_cast<int64_t>(base_ + address);
   BinaryFile file(path_);
@@ -195,14 +209,16 @@ void Hdf5Precheck::checkLocalHeap(uint64_t address, const std::string& what) con
   if (std::memcmp(h, "HEAP", 4) != 0) fail(at, "no HEAP signature");
   const uint64_t bytes = loadLe(h + 8, length_bytes_);
   const uint64_t segment = loadLe(h + 8 + 2 * length_bytes_, offset_bytes_);
-  if (undefinedAddress(segment, offset_bytes_) || segment > static_cast<uint64_t>(file_size_) - base_ ||
+  if (undefinedAddress(segment, offset_bytes_) ||
+      segment > static_cast<uint64_t>(file_size_) - base_ ||
       bytes > static_cast<uint64_t>(file_size_) - base_ - segment || bytes > kMaxHdf5ChunkBytes) {
-    fail(at, "a data segment of " + std::to_string(bytes) + " bytes at address " + std::to_string(segment) +
-                 " lies outside the file");
+    fail(at, "a data segment of " + std::to_string(bytes) + " bytes at address " +
+                 std::to_string(segment) + " lies outside the file");
   }
 }
 
-void Hdf5Precheck::checkLayout(const uint8_t* m, uint64_t size, int64_t at, const std::string& what) const {
+void Hdf5Precheck::checkLayout(const uint8_t* m, uint64_t size, int64_t at,
+                               const std::string& what) const {
   // A chunked dataset's chunk dimensions divide in the library: a zero one is a SIGFPE there.
   // Data layout message, section IV.A.2.i: versions 1-2 (dimensionality, class, 5 reserved bytes,
   // an address unless compact, 4-byte dimensions), 3 (class, dimensionality, address, 4-byte
@@ -243,7 +259,8 @@ void Hdf5Precheck::checkLayout(const uint8_t* m, uint64_t size, int64_t at, cons
   for (int d = 0; d < rank; ++d) {
     const uint64_t n = loadLe(m + pos + static_cast<size_t>(d * width), width);
     if (n == 0) fail("a chunk dimension of 0");
-    if (n > kMaxHdf5ChunkBytes || bytes * n > kMaxHdf5ChunkBytes) fail("chunks of more than " + std::to_string(kMaxHdf5ChunkBytes) + " bytes");
+    if (n > kMaxHdf5ChunkBytes || bytes * n > kMaxHdf5ChunkBytes)
+      fail("chunks of more than " + std::to_string(kMaxHdf5ChunkBytes) + " bytes");
     bytes *= n;
   }
   if (version <= 3) {
@@ -273,15 +290,18 @@ void Hdf5Precheck::checkChunkIndex(uint64_t address, int rank, const std::string
     const uint64_t node_address = pending.back();
     pending.pop_back();
     const int64_t at = static_cast<int64_t>(base_ + node_address);
-    if (node_address >= limit || header > limit - node_address) fail(static_cast<int64_t>(base_), "a node outside the file");
+    if (node_address >= limit || header > limit - node_address)
+      fail(static_cast<int64_t>(base_), "a node outside the file");
     node.resize(header);
     file.seek(at);
     file.readExact(node.data(), header, "a B-tree node");
-    if (std::memcmp(node.data(), "TREE", 4) != 0 || node[4] != 1) fail(at, "not a chunk B-tree node");
+    if (std::memcmp(node.data(), "TREE", 4) != 0 || node[4] != 1)
+      fail(at, "not a chunk B-tree node");
     const int level = node[5];
     const uint64_t entries = loadLe(&node[6], 2);
     const uint64_t bytes = header + entries * entry + key;
-    if (bytes > limit - node_address) fail(at, std::to_string(entries) + " entries run past the end of the file");
+    if (bytes > limit - node_address)
+      fail(at, std::to_string(entries) + " entries run past the end of the file");
     node.resize(bytes);
     file.readExact(node.data() + header, bytes - header, "B-tree node entries");
     for (uint64_t i = 0; i < entries; ++i) {
@@ -291,18 +311,20 @@ void Hdf5Precheck::checkChunkIndex(uint64_t address, int rank, const std::string
       if (level == 0) {
         const uint64_t stored = loadLe(k, 4);
         if (stored > limit - child || stored > kMaxHdf5ChunkBytes) {
-          fail(at, "a chunk of " + std::to_string(stored) + " bytes at address " + std::to_string(child) +
-                       " runs past the end of the file");
+          fail(at, "a chunk of " + std::to_string(stored) + " bytes at address " +
+                       std::to_string(child) + " runs past the end of the file");
         }
       } else {
-        if (seen.size() > kMaxIndexNodes) fail(at, "more than " + std::to_string(kMaxIndexNodes) + " nodes");
+        if (seen.size() > kMaxIndexNodes)
+          fail(at, "more than " + std::to_string(kMaxIndexNodes) + " nodes");
         if (seen.insert(child).second) pending.push_back(child);
       }
     }
   }
 }
 
-void Hdf5Precheck::checkAttribute(const uint8_t* m, uint64_t size, int64_t at, const std::string& what) const {
+void Hdf5Precheck::checkAttribute(const uint8_t* m, uint64_t size, int64_t at,
+                                  const std::string& what) const {
   // Attribute message, section IV.A.2.m: version, flags, name, datatype and dataspace sizes
   // (2 bytes each), [v3: name encoding], then the three, each padded to 8 bytes in version 1, then
   // the value. libhdf5 1.10.8 copies the value at the size the datatype and dataspace give, past
@@ -325,17 +347,20 @@ void Hdf5Precheck::checkAttribute(const uint8_t* m, uint64_t size, int64_t at, c
   if (m[space_at] >= 2 && m[space_at + 3] == 2) return;
   const int rank = m[space_at + 1];
   const uint64_t dims_at = space_at + (m[space_at] == 1 ? 8 : 4);
-  if (rank > 32 || dims_at + static_cast<uint64_t>(rank) * length_bytes_ > space_at + space) fail("a damaged dataspace");
+  if (rank > 32 || dims_at + static_cast<uint64_t>(rank) * length_bytes_ > space_at + space)
+    fail("a damaged dataspace");
   uint64_t bytes = loadLe(m + type_at + 4, 4);  // the element size
   for (int d = 0; d < rank; ++d) {
-    const uint64_t n = loadLe(m + dims_at + static_cast<uint64_t>(d) * length_bytes_, length_bytes_);
+    const uint64_t n =
+        loadLe(m + dims_at + static_cast<uint64_t>(d) * length_bytes_, length_bytes_);
     if (n != 0 && bytes > (size - value_at) / n) fail("a value larger than its message");
     bytes *= n;
   }
   if (bytes > size - value_at) fail("a value larger than its message");
 }
 
-void Hdf5Precheck::checkDatatype(const uint8_t* m, uint64_t size, int64_t at, const std::string& what) const {
+void Hdf5Precheck::checkDatatype(const uint8_t* m, uint64_t size, int64_t at,
+                                 const std::string& what) const {
   // Datatype message, section IV.A.2.d: class and version, 3 bytes of class bits, the element size
   // (4 bytes). libhdf5 converts integers and floats of any stated size, reading past its buffers
   // for sizes no machine has (integers of 12,802 and of 16 bytes, found by fuzzing). Event files
@@ -345,7 +370,8 @@ void Hdf5Precheck::checkDatatype(const uint8_t* m, uint64_t size, int64_t at, co
   const uint64_t bytes = loadLe(m + 4, 4);
   const bool numeric = type_class == 0 || type_class == 1;  // fixed-point, floating-point
   if (numeric && bytes != 1 && bytes != 2 && bytes != 4 && bytes != 8) {
-    throwAtByte(path_, at, "datatype of " + what + ": a number of " + std::to_string(bytes) + " bytes");
+    throwAtByte(path_, at,
+                "datatype of " + what + ": a number of " + std::to_string(bytes) + " bytes");
   }
 }
 

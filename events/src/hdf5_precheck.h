@@ -29,9 +29,12 @@ class Hdf5Precheck {
 
  private:
   void checkLocalHeap(uint64_t address, const std::string& what) const;
-  void checkLayout(const uint8_t* message, uint64_t size, int64_t at, const std::string& what) const;
-  void checkDatatype(const uint8_t* message, uint64_t size, int64_t at, const std::string& what) const;
-  void checkAttribute(const uint8_t* message, uint64_t size, int64_t at, const std::string& what) const;
+  void checkLayout(const uint8_t* message, uint64_t size, int64_t at,
+                   const std::string& what) const;
+  void checkDatatype(const uint8_t* message, uint64_t size, int64_t at,
+                     const std::string& what) const;
+  void checkAttribute(const uint8_t* message, uint64_t size, int64_t at,
+                      const std::string& what) const;
   void checkChunkIndex(uint64_t address, int rank, const std::string& what) const;
 
   std::string path_;

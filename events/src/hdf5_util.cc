@@ -61,7 +61,8 @@ int64_t readIntAttribute(hid_t loc, const std::string& name, const std::string& 
   return value;
 }
 
-std::vector<int64_t> readIntArrayAttribute(hid_t loc, const std::string& name, const std::string& file) {
+std::vector<int64_t> readIntArrayAttribute(hid_t loc, const std::string& name,
+                                           const std::string& file) {
   H5Handle attr(H5Aopen(loc, name.c_str(), H5P_DEFAULT));
   if (!attr) throwInFile(file, "cannot open the attribute '" + name + "'");
   H5Handle space(H5Aget_space(attr.get()));
@@ -76,7 +77,8 @@ std::vector<int64_t> readIntArrayAttribute(hid_t loc, const std::string& name, c
 
 void writeIntAttribute(hid_t loc, const std::string& name, int64_t value) {
   H5Handle space(H5Screate(H5S_SCALAR));
-  H5Handle attr(H5Acreate2(loc, name.c_str(), H5T_STD_I64LE, space.get(), H5P_DEFAULT, H5P_DEFAULT));
+  H5Handle attr(
+      H5Acreate2(loc, name.c_str(), H5T_STD_I64LE, space.get(), H5P_DEFAULT, H5P_DEFAULT));
   if (!attr || H5Awrite(attr.get(), H5T_NATIVE_INT64, &value) < 0) {
     throw Error("cannot write HDF5 attribute '" + name + "'");
   }

@@ -51,7 +51,8 @@ int64_t readIntAttribute(hid_t loc, const std::string& name, const std::string& 
 void writeIntAttribute(hid_t loc, const std::string& name, int64_t value);
 void writeStringAttribute(hid_t loc, const std::string& name, const std::string& value);
 // Reads an integer array attribute (e.g. event_utils' sensor_resolution).
-std::vector<int64_t> readIntArrayAttribute(hid_t loc, const std::string& name, const std::string& file);
+std::vector<int64_t> readIntArrayAttribute(hid_t loc, const std::string& name,
+                                           const std::string& file);
 
 // Dimensions of a dataset.
 std::vector<hsize_t> datasetShape(hid_t dataset);

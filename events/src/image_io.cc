@@ -3,13 +3,12 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
-#include <sstream>
-
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <sstream>
 
-#include "evkit/events/atomic_file.h"
 #include "evkit/base/error.h"
+#include "evkit/events/atomic_file.h"
 #include "evkit/events/decimal.h"
 
 namespace evkit {
@@ -75,7 +74,8 @@ struct FrameFolderWriter::State {
   std::ostringstream csv;
 };
 
-FrameFolderWriter::FrameFolderWriter(const std::string& dir) : state_(std::make_unique<State>(dir)) {
+FrameFolderWriter::FrameFolderWriter(const std::string& dir)
+    : state_(std::make_unique<State>(dir)) {
   std::error_code ec;
   fs::create_directories(state_->out.temporaryPath(), ec);
   if (ec) throwInFile(dir, "cannot create folder: " + ec.message());
@@ -87,10 +87,12 @@ FrameFolderWriter::~FrameFolderWriter() = default;
 void FrameFolderWriter::add(const Frame& frame) {
   char name[32];
   std::snprintf(name, sizeof(name), "%06zu.png", count_);
-  if (!cv::imwrite(state_->out.temporaryPath() + "/" + name, quantize(frame.image, frame.bit_depth))) {
+  if (!cv::imwrite(state_->out.temporaryPath() + "/" + name,
+                   quantize(frame.image, frame.bit_depth))) {
     throwInFile(state_->out.finalPath(), std::string("cannot write ") + name);
   }
-  state_->csv << count_ << ',' << frame.exposure_start_us << ',' << frame.exposure_end_us << ',' << name << '\n';
+  state_->csv << count_ << ',' << frame.exposure_start_us << ',' << frame.exposure_end_us << ','
+              << name << '\n';
   ++count_;
 }
 

@@ -28,7 +28,8 @@ constexpr std::array<std::pair<Format, const char*>, 9> kFormatNames = {{
 
 std::string lowerExtension(const std::string& path) {
   std::string ext = fs::path(path).extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return std::tolower(c); });
   return ext;
 }
 
@@ -103,19 +104,24 @@ Format detectFormat(const std::string& path) {
   if (!fs::exists(path, ec)) throwInFile(path, "no such file");
   if (!fs::is_regular_file(path, ec)) throwInFile(path, "not a regular file");
   const std::optional<Format> by_extension = formatFromExtension(path);
-  const std::optional<Format> by_content = hasHdf5Signature(path) ? Format::kHdf5 : formatFromContent(path);
+  const std::optional<Format> by_content =
+      hasHdf5Signature(path) ? Format::kHdf5 : formatFromContent(path);
   if (by_content) {
     const bool aedat_family = by_extension == Format::kAedat2 &&
                               (*by_content == Format::kAedat31 || *by_content == Format::kAedat4);
     const bool raw_family = by_extension == Format::kEvt2 && *by_content == Format::kEvt3;
     if (by_extension && *by_extension != *by_content && !aedat_family && !raw_family) {
-      throwAtByte(path, 0, "a " + formatName(*by_content) + " file named like a " + formatName(*by_extension) +
-                               " file; rename it or pass --format " + formatName(*by_content));
+      throwAtByte(path, 0,
+                  "a " + formatName(*by_content) + " file named like a " +
+                      formatName(*by_extension) + " file; rename it or pass --format " +
+                      formatName(*by_content));
     }
     return *by_content;
   }
-  if (by_extension == Format::kHdf5) throwAtByte(path, 0, "no HDF5 signature (truncated, corrupt, or not an HDF5 file)");
-  if (by_extension == Format::kAedat2 || by_extension == Format::kAedat31 || by_extension == Format::kAedat4) {
+  if (by_extension == Format::kHdf5)
+    throwAtByte(path, 0, "no HDF5 signature (truncated, corrupt, or not an HDF5 file)");
+  if (by_extension == Format::kAedat2 || by_extension == Format::kAedat31 ||
+      by_extension == Format::kAedat4) {
     throwAtByte(path, 0, "no '#!AER-DAT' signature (not an AEDAT file, or its header is damaged)");
   }
   if (by_extension == Format::kEvt2) {
@@ -123,7 +129,8 @@ Format detectFormat(const std::string& path) {
   }
   if (by_extension) return *by_extension;
   throwInFile(path, "cannot tell the format from the name '" + fs::path(path).filename().string() +
-                        "' (known: .txt .csv .h5 .hdf5 .aedat .aedat4 .raw .dat, or an RPG folder); pass --format");
+                        "' (known: .txt .csv .h5 .hdf5 .aedat .aedat4 .raw .dat, or an RPG "
+                        "folder); pass --format");
 }
 
 bool EventReader::next(Chunk& chunk, size_t max_events) {
@@ -135,8 +142,10 @@ bool EventReader::next(Chunk& chunk, size_t max_events) {
     // Trim to the window; events are sorted, so past the end means done.
     EventStore& ev = chunk.events;
     const auto t_begin = ev.t.begin() + static_cast<std::ptrdiff_t>(before);
-    const size_t first = static_cast<size_t>(std::lower_bound(t_begin, ev.t.end(), window_begin_) - ev.t.begin());
-    const size_t last = static_cast<size_t>(std::lower_bound(t_begin, ev.t.end(), window_end_) - ev.t.begin());
+    const size_t first =
+        static_cast<size_t>(std::lower_bound(t_begin, ev.t.end(), window_begin_) - ev.t.begin());
+    const size_t last =
+        static_cast<size_t>(std::lower_bound(t_begin, ev.t.end(), window_end_) - ev.t.begin());
     if (last < ev.size()) past_window_ = true;
     if (first > before || last < ev.size()) {
       const auto erase_range = [&](auto& column) {
@@ -152,9 +161,10 @@ bool EventReader::next(Chunk& chunk, size_t max_events) {
     const auto outside = [&](const Frame& f) {
       return f.exposure_start_us < window_begin_ || f.exposure_start_us >= window_end_;
     };
-    chunk.frames.erase(std::remove_if(chunk.frames.begin() + static_cast<std::ptrdiff_t>(before_frames),
-                                      chunk.frames.end(), outside),
-                       chunk.frames.end());
+    chunk.frames.erase(
+        std::remove_if(chunk.frames.begin() + static_cast<std::ptrdiff_t>(before_frames),
+                       chunk.frames.end(), outside),
+        chunk.frames.end());
     if (!chunk.events.empty() || !chunk.frames.empty()) return true;
   }
   return !chunk.events.empty() || !chunk.frames.empty();
@@ -209,11 +219,12 @@ std::string compressionName(Compression compression) {
 }
 
 Compression parseCompression(const std::string& name) {
-  for (Compression c : {Compression::kNone, Compression::kDeflate, Compression::kBloscLz4, Compression::kLz4,
-                        Compression::kZstd}) {
+  for (Compression c : {Compression::kNone, Compression::kDeflate, Compression::kBloscLz4,
+                        Compression::kLz4, Compression::kZstd}) {
     if (compressionName(c) == name) return c;
   }
-  throw Error("unknown compression '" + name + "' (known: none, deflate, blosc-lz4 for HDF5; lz4, zstd for AEDAT 4)");
+  throw Error("unknown compression '" + name +
+              "' (known: none, deflate, blosc-lz4 for HDF5; lz4, zstd for AEDAT 4)");
 }
 
 std::unique_ptr<EventWriter> openWriter(const std::string& path, Format format, SensorSize sensor,
@@ -236,7 +247,9 @@ Format outputFormat(const std::string& path) {
   if (ext == ".aedat4" || ext == ".aedat") return Format::kAedat4;
   const auto f = formatFromExtension(path);
   if (f == Format::kText || f == Format::kHdf5) return *f;
-  throwInFile(path, "cannot tell the output format from the extension (writable: .txt .h5 .aedat4); pass --out-format");
+  throwInFile(path,
+              "cannot tell the output format from the extension (writable: .txt .h5 .aedat4); pass "
+              "--out-format");
 }
 
 Recording readRecording(const std::string& path, std::optional<Format> format, int64_t t_begin,
@@ -244,7 +257,8 @@ Recording readRecording(const std::string& path, std::optional<Format> format, i
   auto reader = openReader(path, format);
   reader->setTimeWindow(t_begin, t_end);
   Recording rec;
-  if (reader->info().event_count) rec.events.reserve(static_cast<size_t>(*reader->info().event_count));
+  if (reader->info().event_count)
+    rec.events.reserve(static_cast<size_t>(*reader->info().event_count));
   Chunk chunk;
   while (reader->next(chunk, size_t{1} << 22)) {
     rec.events.append(chunk.events.view());
@@ -264,9 +278,10 @@ Recording readRecording(const std::string& path, std::optional<Format> format, i
   return rec;
 }
 
-void writeRecording(const std::string& path, const Recording& recording, std::optional<Format> format,
-                    const WriterOptions& options) {
-  auto writer = openWriter(path, format ? *format : outputFormat(path), recording.events.sensor(), options);
+void writeRecording(const std::string& path, const Recording& recording,
+                    std::optional<Format> format, const WriterOptions& options) {
+  auto writer =
+      openWriter(path, format ? *format : outputFormat(path), recording.events.sensor(), options);
   writer->write(recording.events.view());
   for (const Frame& f : recording.frames) writer->writeFrame(f);
   writer->close();

@@ -6,8 +6,8 @@
 #include <numeric>
 #include <sstream>
 
-#include "evkit/events/atomic_file.h"
 #include "evkit/base/error.h"
+#include "evkit/events/atomic_file.h"
 
 namespace evkit {
 
@@ -15,7 +15,8 @@ namespace evkit {
 // with spaces and a newline so that the data starts at a multiple of 64 bytes (numpy's NEP 1).
 void writeNpy(const std::string& path, const float* data, const std::vector<size_t>& shape) {
   std::string dict = "{'descr': '<f4', 'fortran_order': False, 'shape': (";
-  for (size_t i = 0; i < shape.size(); ++i) dict += std::to_string(shape[i]) + (shape.size() == 1 || i + 1 < shape.size() ? ", " : "");
+  for (size_t i = 0; i < shape.size(); ++i)
+    dict += std::to_string(shape[i]) + (shape.size() == 1 || i + 1 < shape.size() ? ", " : "");
   dict += "), }";
   const size_t unpadded = 10 + dict.size() + 1;
   dict.append((64 - unpadded % 64) % 64, ' ');
@@ -50,11 +51,14 @@ NpyArray readNpy(const std::string& path) {
   std::ifstream file(path, std::ios::binary);
   if (!file) throwInFile(path, "cannot open");
   const std::string bytes((std::istreambuf_iterator<char>(file)), std::istreambuf_iterator<char>());
-  if (bytes.size() < 10 || bytes.compare(0, 6, "\x93NUMPY") != 0) throwAtByte(path, 0, "not a .npy file");
-  const size_t len = static_cast<unsigned char>(bytes[8]) | (static_cast<unsigned char>(bytes[9]) << 8);
+  if (bytes.size() < 10 || bytes.compare(0, 6, "\x93NUMPY") != 0)
+    throwAtByte(path, 0, "not a .npy file");
+  const size_t len =
+      static_cast<unsigned char>(bytes[8]) | (static_cast<unsigned char>(bytes[9]) << 8);
   if (bytes.size() < 10 + len) throwAtByte(path, 10, "truncated header");
   const std::string dict = bytes.substr(10, len);
-  if (dict.find("'<f4'") == std::string::npos || dict.find("'fortran_order': False") == std::string::npos) {
+  if (dict.find("'<f4'") == std::string::npos ||
+      dict.find("'fortran_order': False") == std::string::npos) {
     throwAtByte(path, 10, "expected little-endian float32 in C order");
   }
   NpyArray out;
@@ -64,8 +68,10 @@ NpyArray readNpy(const std::string& path) {
   for (std::string token; std::getline(shape, token, ',');) {
     if (token.find_first_not_of(" ") != std::string::npos) out.shape.push_back(std::stoul(token));
   }
-  const size_t count = std::accumulate(out.shape.begin(), out.shape.end(), size_t{1}, std::multiplies<>());
-  if (bytes.size() - 10 - len != count * sizeof(float)) throwAtByte(path, static_cast<int64_t>(10 + len), "data size does not match the shape");
+  const size_t count =
+      std::accumulate(out.shape.begin(), out.shape.end(), size_t{1}, std::multiplies<>());
+  if (bytes.size() - 10 - len != count * sizeof(float))
+    throwAtByte(path, static_cast<int64_t>(10 + len), "data size does not match the shape");
   out.data.resize(count);
   if (count) std::memcpy(out.data.data(), bytes.data() + 10 + len, count * sizeof(float));
   return out;

@@ -2,10 +2,13 @@
 
 namespace evkit {
 
-PixelEventIndex::PixelEventIndex(const EventSpan& events, int width, int height) : width_(width), height_(height) {
+PixelEventIndex::PixelEventIndex(const EventSpan& events, int width, int height)
+    : width_(width), height_(height) {
   const size_t pixels = static_cast<size_t>(width) * static_cast<size_t>(height);
   const auto inside = [&](size_t e) { return events.x[e] < width && events.y[e] < height; };
-  const auto pixel = [&](size_t e) { return static_cast<size_t>(events.y[e]) * static_cast<size_t>(width) + events.x[e]; };
+  const auto pixel = [&](size_t e) {
+    return static_cast<size_t>(events.y[e]) * static_cast<size_t>(width) + events.x[e];
+  };
   first_.assign(pixels + 1, 0);
   for (size_t e = 0; e < events.size(); ++e) {
     if (inside(e)) ++first_[pixel(e) + 1];

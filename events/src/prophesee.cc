@@ -4,7 +4,8 @@
 // "% geometry 640x480", "% Width 304", "% end", ...), then little-endian binary data.
 //   EVT 2.0 (32-bit words, type = bits 31..28): 0x0 CD OFF / 0x1 CD ON with bits 27..22 the 6 low
 //     bits of the time, bits 21..11 x, bits 10..0 y; 0x8 EV_TIME_HIGH with bits 27..0 the high
-//     bits (t = high << 6 | low, 34 bits, wrapping); 0xA external trigger, 0xE other, 0xF continued.
+//     bits (t = high << 6 | low, 34 bits, wrapping); 0xA external trigger, 0xE other, 0xF
+//     continued.
 //   EVT 3.0 (16-bit words, type = bits 15..12): 0x0 EVT_ADDR_Y (y = bits 10..0), 0x2 EVT_ADDR_X
 //     (x = bits 10..0, polarity bit 11: one event), 0x3 VECT_BASE_X (base x and polarity), 0x4
 //     VECT_12 / 0x5 VECT_8 (a bit mask of events at base x, base x advances), 0x6 EVT_TIME_LOW
@@ -51,7 +52,8 @@ PropheseeHeader readPropheseeHeader(BinaryFile& file) {
   while (file.peek() == '%') {
     file.readLine(line, 1 << 16);
     std::string lower = line;
-    std::transform(lower.begin(), lower.end(), lower.begin(), [](unsigned char c) { return std::tolower(c); });
+    std::transform(lower.begin(), lower.end(), lower.begin(),
+                   [](unsigned char c) { return std::tolower(c); });
     if (lower == "% end") break;
     const auto value_after = [&](const std::string& key) -> std::string {
       const size_t at = lower.find(key);
@@ -78,9 +80,11 @@ PropheseeHeader readPropheseeHeader(BinaryFile& file) {
     h.sensor = SensorSize{width, height};
   } else {
     std::string c = h.camera;
-    std::transform(c.begin(), c.end(), c.begin(), [](unsigned char ch) { return std::tolower(ch); });
+    std::transform(c.begin(), c.end(), c.begin(),
+                   [](unsigned char ch) { return std::tolower(ch); });
     if (c.find("gen3") != std::string::npos) h.sensor = SensorSize{640, 480};
-    if (c.find("gen4") != std::string::npos || c.find("imx636") != std::string::npos) h.sensor = SensorSize{1280, 720};
+    if (c.find("gen4") != std::string::npos || c.find("imx636") != std::string::npos)
+      h.sensor = SensorSize{1280, 720};
   }
   return h;
 }
@@ -99,11 +103,13 @@ class PropheseeReader : public EventReader {
   // Appends one event after checking it; `at` is its byte offset.
   void emit(EventStore& ev, int64_t t, int x, int y, bool on, int64_t at) {
     if (info_.sensor.known() && (x >= info_.sensor.width || y >= info_.sensor.height)) {
-      file_.failAt(at, "event (x, y) = (" + std::to_string(x) + ", " + std::to_string(y) + ") outside the " +
-                           std::to_string(info_.sensor.width) + "x" + std::to_string(info_.sensor.height) + " sensor");
+      file_.failAt(at, "event (x, y) = (" + std::to_string(x) + ", " + std::to_string(y) +
+                           ") outside the " + std::to_string(info_.sensor.width) + "x" +
+                           std::to_string(info_.sensor.height) + " sensor");
     }
     if (t < last_t_) {
-      file_.failAt(at, "timestamp " + std::to_string(t) + " us goes back in time (previous " + std::to_string(last_t_) + " us)");
+      file_.failAt(at, "timestamp " + std::to_string(t) + " us goes back in time (previous " +
+                           std::to_string(last_t_) + " us)");
     }
     last_t_ = t;
     ev.push_back(t, static_cast<uint16_t>(x), static_cast<uint16_t>(y), on ? 1 : -1);
@@ -112,13 +118,14 @@ class PropheseeReader : public EventReader {
   // Refills block_ with whole words of `word_bytes`; false at the end. A cut-off last word is
   // tolerated with a warning.
   bool refill(size_t word_bytes) {
-    block_.resize(std::min<size_t>(kBlockBytes, static_cast<size_t>(file_.remaining()) + word_bytes));
+    block_.resize(
+        std::min<size_t>(kBlockBytes, static_cast<size_t>(file_.remaining()) + word_bytes));
     const size_t got = file_.read(block_.data(), block_.size());
     block_offset_ = file_.offset() - static_cast<int64_t>(got);
     const size_t whole = got / word_bytes * word_bytes;
     if (whole < got) {
-      info_.warnings.push_back(file_.path() + ": the last record is cut off (" + std::to_string(got - whole) +
-                               " bytes ignored)");
+      info_.warnings.push_back(file_.path() + ": the last record is cut off (" +
+                               std::to_string(got - whole) + " bytes ignored)");
     }
     block_.resize(whole);
     pos_ = 0;
@@ -150,7 +157,8 @@ class Evt2Reader final : public PropheseeReader {
       const uint32_t type = w >> 28;
       if (type == 0x8) {
         const int64_t high = w & 0x0FFFFFFF;
-        if (have_high_ && high < high_ && high_ - high > (int64_t{1} << 27)) wrap_ += int64_t{1} << 34;
+        if (have_high_ && high < high_ && high_ - high > (int64_t{1} << 27))
+          wrap_ += int64_t{1} << 34;
         high_ = high;
         have_high_ = true;
       } else if (type <= 0x1) {
@@ -159,7 +167,8 @@ class Evt2Reader final : public PropheseeReader {
           continue;
         }
         const int64_t t = wrap_ + ((high_ << 6) | ((w >> 22) & 0x3F));
-        emit(ev, t, static_cast<int>((w >> 11) & 0x7FF), static_cast<int>(w & 0x7FF), type == 0x1, at);
+        emit(ev, t, static_cast<int>((w >> 11) & 0x7FF), static_cast<int>(w & 0x7FF), type == 0x1,
+             at);
       } else if (type == 0xA) {
         ++triggers_;
       }
@@ -249,9 +258,11 @@ class DatReader final : public PropheseeReader {
  public:
   explicit DatReader(const std::string& path) : PropheseeReader(path, Format::kDat, "dat") {
     uint8_t type_size[2];
-    if (file_.read(type_size, 2) != 2) file_.fail("truncated: expected the event type and size bytes after the header");
+    if (file_.read(type_size, 2) != 2)
+      file_.fail("truncated: expected the event type and size bytes after the header");
     if (type_size[1] != 8) {
-      file_.failAt(file_.offset() - 1, "event size " + std::to_string(type_size[1]) + " (only 8-byte CD events are supported)");
+      file_.failAt(file_.offset() - 1, "event size " + std::to_string(type_size[1]) +
+                                           " (only 8-byte CD events are supported)");
     }
     info_.counters["event_type"] = type_size[0];
   }
@@ -267,11 +278,12 @@ class DatReader final : public PropheseeReader {
       const uint32_t data = loadLe32(block_.data() + pos_ + 4);
       const int64_t at = block_offset_ + static_cast<int64_t>(pos_);
       pos_ += 8;
-      if (have_t_ && raw_t < last_raw_ && last_raw_ - raw_t > 0x80000000u) wrap_ += int64_t{1} << 32;
+      if (have_t_ && raw_t < last_raw_ && last_raw_ - raw_t > 0x80000000u)
+        wrap_ += int64_t{1} << 32;
       have_t_ = true;
       last_raw_ = raw_t;
-      emit(ev, wrap_ + raw_t, static_cast<int>(data & 0x3FFF), static_cast<int>((data >> 14) & 0x3FFF),
-           (data >> 28) != 0, at);
+      emit(ev, wrap_ + raw_t, static_cast<int>(data & 0x3FFF),
+           static_cast<int>((data >> 14) & 0x3FFF), (data >> 28) != 0, at);
     }
     return ev.size() > start;
   }
@@ -284,9 +296,15 @@ class DatReader final : public PropheseeReader {
 
 }  // namespace
 
-std::unique_ptr<EventReader> openEvt2Reader(const std::string& path) { return std::make_unique<Evt2Reader>(path); }
-std::unique_ptr<EventReader> openEvt3Reader(const std::string& path) { return std::make_unique<Evt3Reader>(path); }
-std::unique_ptr<EventReader> openDatReader(const std::string& path) { return std::make_unique<DatReader>(path); }
+std::unique_ptr<EventReader> openEvt2Reader(const std::string& path) {
+  return std::make_unique<Evt2Reader>(path);
+}
+std::unique_ptr<EventReader> openEvt3Reader(const std::string& path) {
+  return std::make_unique<Evt3Reader>(path);
+}
+std::unique_ptr<EventReader> openDatReader(const std::string& path) {
+  return std::make_unique<DatReader>(path);
+}
 
 std::string propheseeRawVersion(const std::string& path) {
   BinaryFile file(path);

@@ -3,9 +3,8 @@
 #include <algorithm>
 #include <cassert>
 #include <cmath>
-#include <random>
-
 #include <opencv2/imgproc.hpp>
+#include <random>
 
 namespace evkit {
 
@@ -22,7 +21,8 @@ uint64_t mix(uint64_t x) {
 }
 
 constexpr float kMaxPerInterval = 1e5f;  // events of one pixel in one frame interval, at most
-constexpr int64_t kMaxCountingSortSpan = int64_t{1} << 24;  // µs; longer intervals use a stable sort
+constexpr int64_t kMaxCountingSortSpan = int64_t{1}
+                                         << 24;  // µs; longer intervals use a stable sort
 
 // Time of a crossing inside [t_a, t_b]: where the linear ramp from da to db reaches `level`.
 inline uint32_t crossingOffset(float da, float db, float level, int64_t dt) {
@@ -46,8 +46,10 @@ EventSimulator::EventSimulator(SensorSize sensor, const SimulatorOptions& option
   for (size_t i = 0; i < n; ++i) {
     const double zp = options.sigma > 0 ? normal(rng) : 0.0;
     const double zn = options.sigma > 0 ? normal(rng) : 0.0;
-    c_pos_[i] = std::max(kMinContrast, static_cast<float>(options.contrast_pos + options.sigma * zp));
-    c_neg_[i] = std::max(kMinContrast, static_cast<float>(options.contrast_neg + options.sigma * zn));
+    c_pos_[i] =
+        std::max(kMinContrast, static_cast<float>(options.contrast_pos + options.sigma * zp));
+    c_neg_[i] =
+        std::max(kMinContrast, static_cast<float>(options.contrast_neg + options.sigma * zn));
   }
   last_event_.assign(n, INT64_MIN / 2);
   counts_.resize(n);
@@ -164,7 +166,8 @@ void EventSimulator::addFrame(const cv::Mat& grey, int64_t t_us, EventStore& out
   std::vector<int8_t> noise_pol;
   if (options_.shot_noise_rate_hz > 0) {
     std::mt19937_64 rng(mix(options_.seed ^ mix(static_cast<uint64_t>(stats_.frames))));
-    std::poisson_distribution<int64_t> count(options_.shot_noise_rate_hz * static_cast<double>(n) * static_cast<double>(dt) * 1e-6);
+    std::poisson_distribution<int64_t> count(options_.shot_noise_rate_hz * static_cast<double>(n) *
+                                             static_cast<double>(dt) * 1e-6);
     std::uniform_int_distribution<uint64_t> pixel(0, n - 1);
     std::uniform_int_distribution<int64_t> when(0, dt - 1);
     const int64_t m = count(rng);
@@ -203,7 +206,8 @@ void EventSimulator::addFrame(const cv::Mat& grey, int64_t t_us, EventStore& out
     for (size_t e = 0; e < m; ++e) order_[bucket_[offsets_[e]]++] = static_cast<uint32_t>(e);
   } else {
     for (size_t e = 0; e < m; ++e) order_[e] = static_cast<uint32_t>(e);
-    std::stable_sort(order_.begin(), order_.end(), [&](uint32_t a, uint32_t b) { return offsets_[a] < offsets_[b]; });
+    std::stable_sort(order_.begin(), order_.end(),
+                     [&](uint32_t a, uint32_t b) { return offsets_[a] < offsets_[b]; });
   }
   const size_t base = out.size();
   out.t.resize(base + m);
@@ -253,8 +257,10 @@ cv::Mat toSensorIntensity(const cv::Mat& image, bool bayer_rggb) {
   return grey;
 }
 
-BlurAccumulator::BlurAccumulator(std::vector<Exposure> exposures) : exposures_(std::move(exposures)) {
-  std::sort(exposures_.begin(), exposures_.end(), [](const Exposure& a, const Exposure& b) { return a.end_us < b.end_us; });
+BlurAccumulator::BlurAccumulator(std::vector<Exposure> exposures)
+    : exposures_(std::move(exposures)) {
+  std::sort(exposures_.begin(), exposures_.end(),
+            [](const Exposure& a, const Exposure& b) { return a.end_us < b.end_us; });
   sums_.resize(exposures_.size());
 }
 
@@ -262,7 +268,8 @@ size_t BlurAccumulator::pending() const { return exposures_.size() - next_done_;
 
 // The frame interval [t0, t1] with intensities I0 -> I1 (linear in time) contributes to an
 // exposure [s, e] the integral over [a, b] = [t0, t1] ∩ [s, e]: (b - a) (I(a) + I(b)) / 2.
-std::vector<std::pair<BlurAccumulator::Exposure, cv::Mat>> BlurAccumulator::addFrame(const cv::Mat& linear, int64_t t_us) {
+std::vector<std::pair<BlurAccumulator::Exposure, cv::Mat>> BlurAccumulator::addFrame(
+    const cv::Mat& linear, int64_t t_us) {
   std::vector<std::pair<Exposure, cv::Mat>> done;
   cv::Mat cur;
   linear.convertTo(cur, CV_32F);
@@ -272,7 +279,8 @@ std::vector<std::pair<BlurAccumulator::Exposure, cv::Mat>> BlurAccumulator::addF
       const Exposure& e = exposures_[k];
       const int64_t a = std::max(e.start_us, t_prev_), b = std::min(e.end_us, t_us);
       if (b <= a) continue;
-      const double wa = static_cast<double>(a - t_prev_) / span, wb = static_cast<double>(b - t_prev_) / span;
+      const double wa = static_cast<double>(a - t_prev_) / span,
+                   wb = static_cast<double>(b - t_prev_) / span;
       // I(a) + I(b) = (2 - wa - wb) I0 + (wa + wb) I1
       const double scale = static_cast<double>(b - a) / 2.0;
       cv::Mat contribution = prev_ * ((2.0 - wa - wb) * scale) + cur * ((wa + wb) * scale);

@@ -52,18 +52,21 @@ void EventSlicer::slice(bool final, const Callback& callback) {
     while (!stopped_ && available - offset_ >= count_) {
       emit(offset_ + count_, pending_.t[offset_], pending_.t[offset_ + count_ - 1] + 1, callback);
     }
-    if (final && !stopped_ && available > offset_) emit(available, pending_.t[offset_], pending_.t[available - 1] + 1, callback);
+    if (final && !stopped_ && available > offset_)
+      emit(available, pending_.t[offset_], pending_.t[available - 1] + 1, callback);
     return;
   }
   const int64_t stop = end_.value_or(std::numeric_limits<int64_t>::max());
   while (!stopped_ && window_begin_ < stop) {
-    const int64_t window_end =
-        window_begin_ > std::numeric_limits<int64_t>::max() - length_ ? std::numeric_limits<int64_t>::max() : window_begin_ + length_;
+    const int64_t window_end = window_begin_ > std::numeric_limits<int64_t>::max() - length_
+                                   ? std::numeric_limits<int64_t>::max()
+                                   : window_begin_ + length_;
     // A window is complete once an event at or after its end has arrived (or the stream ended).
     const bool complete = available > offset_ && pending_.t[available - 1] >= window_end;
     if (!complete && !final) break;
     if (final && offset_ >= available) break;
-    const size_t end_index = offset_ + pending_.view().subspan(offset_, available).lowerBound(window_end);
+    const size_t end_index =
+        offset_ + pending_.view().subspan(offset_, available).lowerBound(window_end);
     const int64_t begin = window_begin_;
     window_begin_ = window_end;
     emit(end_index, begin, window_end, callback);

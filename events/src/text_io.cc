@@ -8,11 +8,11 @@
 #include <cstring>
 #include <filesystem>
 
-#include "evkit/events/atomic_file.h"
 #include "evkit/base/error.h"
+#include "evkit/events/atomic_file.h"
+#include "evkit/events/decimal.h"
 #include "evkit/events/image_io.h"
 #include "formats.h"
-#include "evkit/events/decimal.h"
 #include "unique_file.h"
 
 namespace evkit::detail {
@@ -111,15 +111,18 @@ class TextReader final : public EventReader {
     // No bigger than the file needs (plus the spare byte for a missing final newline).
     std::error_code ec;
     const uintmax_t size = fs::file_size(path_, ec);
-    buffer_.resize(ec ? kBufferBytes : static_cast<size_t>(std::min<uintmax_t>(kBufferBytes, size + 2)));
+    buffer_.resize(ec ? kBufferBytes
+                      : static_cast<size_t>(std::min<uintmax_t>(kBufferBytes, size + 2)));
     info_.format = Format::kText;
     info_.layout = "rpg-text";
     fill();
     if (len_ == 0) throwInFile(path_, "empty file (expected lines 't x y p')");
     if (std::memchr(buffer_.data(), '\0', std::min<size_t>(len_, 4096))) {
-      throwAtByte(path_, static_cast<int64_t>(static_cast<const char*>(std::memchr(buffer_.data(), '\0', len_)) -
-                                              buffer_.data()),
-                  "binary data in a text event file (wrong --format?)");
+      throwAtByte(
+          path_,
+          static_cast<int64_t>(static_cast<const char*>(std::memchr(buffer_.data(), '\0', len_)) -
+                               buffer_.data()),
+          "binary data in a text event file (wrong --format?)");
     }
     readOptionalHeader();
     const std::string frames = frameFolderFor(path_);
@@ -154,9 +157,11 @@ class TextReader final : public EventReader {
           fail(line_start, end, "the timestamp t (seconds)");
         }
         skipSeparators(p, end);
-        if (!parseSmallUnsigned(p, end, 65535, x)) fail(line_start, end, "x (an integer in 0..65535)");
+        if (!parseSmallUnsigned(p, end, 65535, x))
+          fail(line_start, end, "x (an integer in 0..65535)");
         skipSeparators(p, end);
-        if (!parseSmallUnsigned(p, end, 65535, y)) fail(line_start, end, "y (an integer in 0..65535)");
+        if (!parseSmallUnsigned(p, end, 65535, y))
+          fail(line_start, end, "y (an integer in 0..65535)");
         skipSeparators(p, end);
         if (*p == '0' || *p == '1') {
           pol = *p++ - '0';
@@ -221,9 +226,11 @@ class TextReader final : public EventReader {
     }
     complete_end_ = 0;  // whatever is left is at most a partial line
     if (!eof_) {
-      const size_t got = std::fread(buffer_.data() + len_, 1, buffer_.size() - 1 - len_, file_.get());
+      const size_t got =
+          std::fread(buffer_.data() + len_, 1, buffer_.size() - 1 - len_, file_.get());
       if (got == 0) {
-        if (std::ferror(file_.get())) throwAtByte(path_, bytes_before_ + static_cast<int64_t>(len_), "read error");
+        if (std::ferror(file_.get()))
+          throwAtByte(path_, bytes_before_ + static_cast<int64_t>(len_), "read error");
         eof_ = true;
       }
       len_ += got;
@@ -233,7 +240,8 @@ class TextReader final : public EventReader {
     if (last_nl) {
       complete_end_ = static_cast<size_t>(static_cast<const char*>(last_nl) - buffer_.data()) + 1;
     } else if (eof_) {
-      buffer_[len_] = '\n';  // the last line has no newline: give it one (the buffer keeps a spare byte)
+      buffer_[len_] =
+          '\n';  // the last line has no newline: give it one (the buffer keeps a spare byte)
       complete_end_ = ++len_;
     } else if (len_ > kMaxLineBytes) {
       throwAtLine(path_, line_ + 1, "line longer than 64 KiB (not a text event file?)");

@@ -11,6 +11,8 @@ namespace evkit::detail {
 
 // Throws evkit::Error naming the file and line of a malformed entry or of a time that goes back
 // (or, with strictly_increasing, does not advance).
-std::vector<std::pair<int64_t, std::string>> readTimedPathList(const std::string& list, bool seconds, bool strictly_increasing);
+std::vector<std::pair<int64_t, std::string>> readTimedPathList(const std::string& list,
+                                                               bool seconds,
+                                                               bool strictly_increasing);
 
 }  // namespace evkit::detail

@@ -3,8 +3,8 @@
 #include <cstdio>
 #include <exception>
 
-#include "evkit/deblur/deblurrer.h"
 #include "evkit/base/error.h"
+#include "evkit/deblur/deblurrer.h"
 #include "evkit/events/io.h"
 #include "evkit/events/random_events.h"
 
@@ -29,13 +29,18 @@ int main(int argc, char** argv) {
     obs.blurry.exposure_start_us = back.events.t.front();
     obs.blurry.exposure_end_us = obs.blurry.exposure_start_us + 20000;
     obs.events = evkit::EventStore(random.sensor);
-    obs.events.append(back.events.sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us + 1));
-    obs.camera = {0.9 * random.sensor.width, 0.9 * random.sensor.width, random.sensor.width / 2.0, random.sensor.height / 2.0, {}};
+    obs.events.append(
+        back.events.sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us + 1));
+    obs.camera = {0.9 * random.sensor.width,
+                  0.9 * random.sensor.width,
+                  random.sensor.width / 2.0,
+                  random.sensor.height / 2.0,
+                  {}};
     obs.contrast = {{0.2, 0.2}};
     const auto edi = evkit::makeDeblurrer("edi");
     const evkit::DeblurResult result = edi->run(obs, evkit::defaultRequest(obs, 3));
-    std::printf("edi: %zu sharp frames of %dx%d\n", result.frames.size(), result.frames.front().image.cols,
-                result.frames.front().image.rows);
+    std::printf("edi: %zu sharp frames of %dx%d\n", result.frames.size(),
+                result.frames.front().image.cols, result.frames.front().image.rows);
   } catch (const evkit::Error& e) {
     std::fprintf(stderr, "evkit_example: %s\n", e.what());
     return 1;

@@ -7,7 +7,8 @@
 namespace evkit::nerf {
 
 template <typename T>
-Adam<T>::Adam(std::vector<ParameterBlock<T>> blocks, const AdamOptions& options) : blocks_(std::move(blocks)), options_(options) {
+Adam<T>::Adam(std::vector<ParameterBlock<T>> blocks, const AdamOptions& options)
+    : blocks_(std::move(blocks)), options_(options) {
   for (const ParameterBlock<T>& b : blocks_) {
     m_.emplace_back(b.size, T(0));
     v_.emplace_back(b.size, T(0));
@@ -16,7 +17,8 @@ Adam<T>::Adam(std::vector<ParameterBlock<T>> blocks, const AdamOptions& options)
 
 template <typename T>
 double Adam<T>::learningRate() const {
-  return options_.learning_rate * std::pow(options_.decay_rate, static_cast<double>(t_) / options_.decay_steps);
+  return options_.learning_rate *
+         std::pow(options_.decay_rate, static_cast<double>(t_) / options_.decay_steps);
 }
 
 template <typename T>
@@ -26,7 +28,8 @@ void Adam<T>::step() {
   const double c1 = 1.0 - std::pow(options_.beta1, static_cast<double>(t_));
   const double c2 = 1.0 - std::pow(options_.beta2, static_cast<double>(t_));
   const T step = static_cast<T>(lr * std::sqrt(c2) / c1);
-  const T b1 = static_cast<T>(options_.beta1), b2 = static_cast<T>(options_.beta2), eps = static_cast<T>(options_.epsilon);
+  const T b1 = static_cast<T>(options_.beta1), b2 = static_cast<T>(options_.beta2),
+          eps = static_cast<T>(options_.epsilon);
   for (size_t k = 0; k < blocks_.size(); ++k) {
     const ParameterBlock<T>& b = blocks_[k];
     T* m = m_[k].data();
@@ -54,8 +57,10 @@ template <typename T>
 void Adam<T>::save(std::ostream& out) const {
   out.write(reinterpret_cast<const char*>(&t_), sizeof(t_));
   for (size_t k = 0; k < blocks_.size(); ++k) {
-    out.write(reinterpret_cast<const char*>(m_[k].data()), static_cast<std::streamsize>(m_[k].size() * sizeof(T)));
-    out.write(reinterpret_cast<const char*>(v_[k].data()), static_cast<std::streamsize>(v_[k].size() * sizeof(T)));
+    out.write(reinterpret_cast<const char*>(m_[k].data()),
+              static_cast<std::streamsize>(m_[k].size() * sizeof(T)));
+    out.write(reinterpret_cast<const char*>(v_[k].data()),
+              static_cast<std::streamsize>(v_[k].size() * sizeof(T)));
   }
 }
 
@@ -63,8 +68,10 @@ template <typename T>
 void Adam<T>::restore(std::istream& in) {
   in.read(reinterpret_cast<char*>(&t_), sizeof(t_));
   for (size_t k = 0; k < blocks_.size(); ++k) {
-    in.read(reinterpret_cast<char*>(m_[k].data()), static_cast<std::streamsize>(m_[k].size() * sizeof(T)));
-    in.read(reinterpret_cast<char*>(v_[k].data()), static_cast<std::streamsize>(v_[k].size() * sizeof(T)));
+    in.read(reinterpret_cast<char*>(m_[k].data()),
+            static_cast<std::streamsize>(m_[k].size() * sizeof(T)));
+    in.read(reinterpret_cast<char*>(v_[k].data()),
+            static_cast<std::streamsize>(v_[k].size() * sizeof(T)));
   }
 }
 

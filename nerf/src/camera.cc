@@ -7,11 +7,13 @@ namespace evkit::nerf {
 namespace {
 // Distorts normalised coordinates (x, y) with k1 k2 p1 p2 k3.
 Eigen::Vector2d distort(const std::vector<double>& k, double x, double y) {
-  const double k1 = k.size() > 0 ? k[0] : 0, k2 = k.size() > 1 ? k[1] : 0, p1 = k.size() > 2 ? k[2] : 0, p2 = k.size() > 3 ? k[3] : 0,
+  const double k1 = k.size() > 0 ? k[0] : 0, k2 = k.size() > 1 ? k[1] : 0,
+               p1 = k.size() > 2 ? k[2] : 0, p2 = k.size() > 3 ? k[3] : 0,
                k3 = k.size() > 4 ? k[4] : 0;
   const double r2 = x * x + y * y;
   const double radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3));
-  return {x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x), y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y};
+  return {x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
+          y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y};
 }
 }  // namespace
 
@@ -29,8 +31,9 @@ Vector3 pixelDirection(const PinholeCamera& camera, double u, double v) {
 }
 
 Eigen::Vector2d projectPoint(const PinholeCamera& camera, const Vector3& p) {
-  const Eigen::Vector2d n = camera.distortion.empty() ? Eigen::Vector2d(p.x() / p.z(), p.y() / p.z())
-                                                      : distort(camera.distortion, p.x() / p.z(), p.y() / p.z());
+  const Eigen::Vector2d n = camera.distortion.empty()
+                                ? Eigen::Vector2d(p.x() / p.z(), p.y() / p.z())
+                                : distort(camera.distortion, p.x() / p.z(), p.y() / p.z());
   return {camera.fx * n.x() + camera.cx, camera.fy * n.y() + camera.cy};
 }
 
@@ -46,11 +49,13 @@ NdcRay toNdc(const Ray& ray, const PinholeCamera& camera, double near) {
   const Vector3 on = o + ((near - o.z()) / d.z()) * d;  // onto z = near
   NdcRay r;
   r.origin = Vector3(ax * on.x() / near, ay * on.y() / near, -1.0);
-  r.direction = Vector3(ax * (d.x() / d.z() - on.x() / near), ay * (d.y() / d.z() - on.y() / near), 2.0);
+  r.direction =
+      Vector3(ax * (d.x() / d.z() - on.x() / near), ay * (d.y() / d.z() - on.y() / near), 2.0);
   return r;
 }
 
-Eigen::Matrix<double, 3, 6> ndcPointPoseJacobian(const PinholeCamera& camera, const SE3& T, double u, double v, double t, double n) {
+Eigen::Matrix<double, 3, 6> ndcPointPoseJacobian(const PinholeCamera& camera, const SE3& T,
+                                                 double u, double v, double t, double n) {
   const Vector3 d_cam = pixelDirection(camera, u, v);
   const Matrix3 R = T.rotationMatrix();
   const Vector3 o = T.translation(), d = R * d_cam;
@@ -62,7 +67,8 @@ Eigen::Matrix<double, 3, 6> ndcPointPoseJacobian(const PinholeCamera& camera, co
   dp_do(0, 2) = -ax * s * rx;
   dp_do(1, 1) = ay * s;
   dp_do(1, 2) = -ay * s * ry;
-  const double gx = ax * ((1 - t) * (n - o.z()) / n + t), gy = ay * ((1 - t) * (n - o.z()) / n + t);  // dp/dr
+  const double gx = ax * ((1 - t) * (n - o.z()) / n + t),
+               gy = ay * ((1 - t) * (n - o.z()) / n + t);  // dp/dr
   dp_dd(0, 0) = gx / d.z();
   dp_dd(0, 2) = -gx * d.x() / (d.z() * d.z());
   dp_dd(1, 1) = gy / d.z();

@@ -19,21 +19,25 @@ void activate(Eigen::MatrixBase<Derived>&& raw_to_out) {
   using T = typename Derived::Scalar;
   const auto r = raw_to_out.row(0).array();
   raw_to_out.row(0) = (r.max(T(0)) + (-r.abs()).exp().log1p()).matrix();
-  raw_to_out.bottomRows(raw_to_out.rows() - 1) = raw_to_out.bottomRows(raw_to_out.rows() - 1).array().logistic().matrix();
+  raw_to_out.bottomRows(raw_to_out.rows() - 1) =
+      raw_to_out.bottomRows(raw_to_out.rows() - 1).array().logistic().matrix();
 }
 
 // d raw from d out, given the activated outputs: softplus' = sigmoid(raw) = 1 - exp(-density);
 // sigmoid' = s (1 - s).
 template <typename A, typename B, typename C>
-void activationBackward(const Eigen::MatrixBase<A>& out, const Eigen::MatrixBase<B>& d_out, Eigen::MatrixBase<C>&& d_raw) {
+void activationBackward(const Eigen::MatrixBase<A>& out, const Eigen::MatrixBase<B>& d_out,
+                        Eigen::MatrixBase<C>&& d_raw) {
   using T = typename A::Scalar;
   const Eigen::Index c = out.rows() - 1;
   d_raw.row(0) = (d_out.row(0).array() * (T(1) - (-out.row(0).array()).exp())).matrix();
-  d_raw.bottomRows(c) = (d_out.bottomRows(c).array() * out.bottomRows(c).array() * (T(1) - out.bottomRows(c).array())).matrix();
+  d_raw.bottomRows(c) =
+      (d_out.bottomRows(c).array() * out.bottomRows(c).array() * (T(1) - out.bottomRows(c).array()))
+          .matrix();
 }
 
-// BARF's window: band 0 always, band b at (1 - cos(pi f)) / 2 with f = clamp(bands - (b - 1), 0, 1);
-// empty when every band is fully open (the fields then skip the weighting).
+// BARF's window: band 0 always, band b at (1 - cos(pi f)) / 2 with f = clamp(bands - (b - 1), 0,
+// 1); empty when every band is fully open (the fields then skip the weighting).
 template <typename T>
 std::vector<T> bandWeights(double bands, int count) {
   std::vector<T> w(static_cast<size_t>(count), T(1));
@@ -48,8 +52,10 @@ std::vector<T> bandWeights(double bands, int count) {
 template <typename T>
 void appendMlp(Mlp<T>& mlp, std::vector<ParameterBlock<T>>& blocks) {
   for (size_t l = 0; l < mlp.weights().size(); ++l) {
-    blocks.push_back({mlp.weights()[l].data(), mlp.weightGradients()[l].data(), static_cast<size_t>(mlp.weights()[l].size()), nullptr, 1});
-    blocks.push_back({mlp.biases()[l].data(), mlp.biasGradients()[l].data(), static_cast<size_t>(mlp.biases()[l].size()), nullptr, 1});
+    blocks.push_back({mlp.weights()[l].data(), mlp.weightGradients()[l].data(),
+                      static_cast<size_t>(mlp.weights()[l].size()), nullptr, 1});
+    blocks.push_back({mlp.biases()[l].data(), mlp.biasGradients()[l].data(),
+                      static_cast<size_t>(mlp.biases()[l].size()), nullptr, 1});
   }
 }
 
@@ -102,7 +108,9 @@ class MlpField final : public RadianceField<T> {
   }
   // Band 0: the raw position; band k + 1: frequency 2^k pi.
   int bands() const override { return 1 + config_.frequencies; }
-  void setBandLimit(double bands) override { band_weight_ = bandWeights<T>(bands, 1 + config_.frequencies); }
+  void setBandLimit(double bands) override {
+    band_weight_ = bandWeights<T>(bands, 1 + config_.frequencies);
+  }
 
  private:
   static std::vector<int> trunkWidths(const MlpFieldConfig& c) {
@@ -115,7 +123,8 @@ class MlpField final : public RadianceField<T> {
   void weightBands(Matrix& encoded) const {
     if (band_weight_.empty()) return;
     const Eigen::Index d = positions_.rows();
-    for (int k = 0; k < config_.frequencies; ++k) encoded.middleRows(d * (1 + 2 * k), 2 * d) *= band_weight_[static_cast<size_t>(k + 1)];
+    for (int k = 0; k < config_.frequencies; ++k)
+      encoded.middleRows(d * (1 + 2 * k), 2 * d) *= band_weight_[static_cast<size_t>(k + 1)];
   }
   MlpFieldConfig config_;
   int channels_;
@@ -126,8 +135,8 @@ class MlpField final : public RadianceField<T> {
 
 // The fast field: hash encoding, then one hidden ReLU layer, in blocks of samples that stay in the
 // cache (the encoding's 32 features and the 64 hidden values of a block are a few tens of KB),
-// threads over blocks (the grid's backward: threads over levels). Forward keeps the encoding and the hidden layer for backward (cheaper than
-// recomputing the first layer).
+// threads over blocks (the grid's backward: threads over levels). Forward keeps the encoding and
+// the hidden layer for backward (cheaper than recomputing the first layer).
 template <typename T>
 class HashField final : public RadianceField<T> {
  public:
@@ -136,7 +145,9 @@ class HashField final : public RadianceField<T> {
       : channels_(channels),
         grid_(c.grid, seed),
         mlp_({grid_.outputSize(), c.hidden, 1 + channels}, -1, seed + 1),
-        fast_layers_(EVKIT_SMALL_LAYER && c.kernels && std::is_same_v<T, float> && grid_.outputSize() == 32 && c.hidden == 64 && (channels == 1 || channels == 3)) {}
+        fast_layers_(EVKIT_SMALL_LAYER && c.kernels && std::is_same_v<T, float> &&
+                     grid_.outputSize() == 32 && c.hidden == 64 &&
+                     (channels == 1 || channels == 3)) {}
 
   std::string name() const override { return "hash"; }
   int channels() const override { return channels_; }
@@ -157,12 +168,16 @@ class HashField final : public RadianceField<T> {
       auto x = features_.middleCols(begin, count);
       grid_.encode(begin, count, x.data(), x.rows());
       if (!level_weight_.empty()) {
-        for (int l = 0; l < grid_.config().levels; ++l) x.middleRows(l * grid_.config().features, grid_.config().features) *= level_weight_[static_cast<size_t>(l)];
+        for (int l = 0; l < grid_.config().levels; ++l)
+          x.middleRows(l * grid_.config().features, grid_.config().features) *=
+              level_weight_[static_cast<size_t>(l)];
       }
       auto hidden = hidden_.middleCols(begin, count);
 #if EVKIT_SMALL_LAYER
       if constexpr (std::is_same_v<T, float>) {
-        if (fast_layers_) small_layer::forwardRelu<64>(w0.data(), b0.data(), 32, x.data(), static_cast<int>(count), hidden.data());
+        if (fast_layers_)
+          small_layer::forwardRelu<64>(w0.data(), b0.data(), 32, x.data(), static_cast<int>(count),
+                                       hidden.data());
       }
 #endif
       if (!fast_layers_) {
@@ -202,7 +217,8 @@ class HashField final : public RadianceField<T> {
         const auto x = features_.middleCols(begin, count);
         const auto hidden = hidden_.middleCols(begin, count);
         d_out.resize(out_.rows(), count);
-        activationBackward(out_.middleCols(begin, count), d_outputs.middleCols(begin, count), d_out.leftCols(count));
+        activationBackward(out_.middleCols(begin, count), d_outputs.middleCols(begin, count),
+                           d_out.leftCols(count));
         db1[t] += d_out.rowwise().sum();
 #if EVKIT_SMALL_LAYER
         if constexpr (std::is_same_v<T, float>) {
@@ -211,9 +227,13 @@ class HashField final : public RadianceField<T> {
             d_x.resize(x.rows(), count);
             const int c = static_cast<int>(count);
             if (channels_ == 1) {
-              small_layer::outputLayerBackward<64, 2>(w1t.data(), hidden.data(), d_out.data(), c, d_hidden.data(), db0[t].data(), dw1t[t].data());
+              small_layer::outputLayerBackward<64, 2>(w1t.data(), hidden.data(), d_out.data(), c,
+                                                      d_hidden.data(), db0[t].data(),
+                                                      dw1t[t].data());
             } else {
-              small_layer::outputLayerBackward<64, 4>(w1t.data(), hidden.data(), d_out.data(), c, d_hidden.data(), db0[t].data(), dw1t[t].data());
+              small_layer::outputLayerBackward<64, 4>(w1t.data(), hidden.data(), d_out.data(), c,
+                                                      d_hidden.data(), db0[t].data(),
+                                                      dw1t[t].data());
             }
             small_layer::weightGradient<64>(d_hidden.data(), x.data(), 32, c, dw0[t].data());
             small_layer::inputGradient<32>(w0t.data(), 64, d_hidden.data(), c, d_x.data());
@@ -243,8 +263,8 @@ class HashField final : public RadianceField<T> {
 
   std::vector<ParameterBlock<T>> parameters() override {
     std::vector<ParameterBlock<T>> blocks;
-    blocks.push_back({grid_.table().data(), grid_.gradients().data(), grid_.table().size(), grid_.touched().data(),
-                      static_cast<size_t>(grid_.config().features)});
+    blocks.push_back({grid_.table().data(), grid_.gradients().data(), grid_.table().size(),
+                      grid_.touched().data(), static_cast<size_t>(grid_.config().features)});
     appendMlp(mlp_, blocks);
     return blocks;
   }
@@ -253,12 +273,15 @@ class HashField final : public RadianceField<T> {
     mlp_.zeroGradients();
   }
   int bands() const override { return grid_.config().levels; }
-  void setBandLimit(double bands) override { level_weight_ = bandWeights<T>(bands, grid_.config().levels); }
+  void setBandLimit(double bands) override {
+    level_weight_ = bandWeights<T>(bands, grid_.config().levels);
+  }
 
  private:
   static constexpr Eigen::Index kBlock = 256;
 
-  // d features of samples [begin, begin + count) into the level-major layout of the grid's backward.
+  // d features of samples [begin, begin + count) into the level-major layout of the grid's
+  // backward.
   void scatter(Eigen::Index begin, Eigen::Index count, const Matrix& d_x) {
     const Eigen::Index F = grid_.config().features, n = features_.cols();
     for (int l = 0; l < grid_.config().levels; ++l) {
@@ -274,10 +297,11 @@ class HashField final : public RadianceField<T> {
   HashGrid<T> grid_;
   Mlp<T> mlp_;
   Matrix out_;
-  Matrix features_, hidden_;  // the last forward's encoding and hidden layer (after the ReLU)
+  Matrix features_, hidden_;   // the last forward's encoding and hidden layer (after the ReLU)
   std::vector<T> d_features_;  // level-major, for the grid's backward
   // The register-blocked kernels (small_layer.h; AVX-512 targets) for the common shape in float: 32
-  // encoded features (8 x 4, 16 x 2) into 64 hidden units, grey or colour; Eigen's products otherwise.
+  // encoded features (8 x 4, 16 x 2) into 64 hidden units, grey or colour; Eigen's products
+  // otherwise.
   bool fast_layers_;
   std::vector<T> level_weight_;  // per level; empty: every level at weight 1
 };
@@ -285,17 +309,20 @@ class HashField final : public RadianceField<T> {
 }  // namespace
 
 template <typename T>
-std::unique_ptr<RadianceField<T>> makeMlpField(const MlpFieldConfig& config, int channels, uint64_t seed) {
+std::unique_ptr<RadianceField<T>> makeMlpField(const MlpFieldConfig& config, int channels,
+                                               uint64_t seed) {
   return std::make_unique<MlpField<T>>(config, channels, seed);
 }
 template <typename T>
-std::unique_ptr<RadianceField<T>> makeHashField(const HashFieldConfig& config, int channels, uint64_t seed) {
+std::unique_ptr<RadianceField<T>> makeHashField(const HashFieldConfig& config, int channels,
+                                                uint64_t seed) {
   return std::make_unique<HashField<T>>(config, channels, seed);
 }
 
 template std::unique_ptr<RadianceField<float>> makeMlpField(const MlpFieldConfig&, int, uint64_t);
 template std::unique_ptr<RadianceField<double>> makeMlpField(const MlpFieldConfig&, int, uint64_t);
 template std::unique_ptr<RadianceField<float>> makeHashField(const HashFieldConfig&, int, uint64_t);
-template std::unique_ptr<RadianceField<double>> makeHashField(const HashFieldConfig&, int, uint64_t);
+template std::unique_ptr<RadianceField<double>> makeHashField(const HashFieldConfig&, int,
+                                                              uint64_t);
 
 }  // namespace evkit::nerf

@@ -11,18 +11,22 @@ namespace evkit::nerf {
 
 template <typename T>
 HashGrid<T>::HashGrid(const HashGridConfig& config, uint64_t seed) : config_(config) {
-  if (config.levels < 1 || config.features < 1 || config.features > 16 || config.log2_table < 1 || config.log2_table > 30 ||
-      config.base_resolution < 1 || !(config.per_level_scale >= 1.0)) {
-    throw std::invalid_argument("hash grid: needs levels >= 1, features 1..16, log2_table 1..30, base_resolution >= 1, per_level_scale >= 1");
+  if (config.levels < 1 || config.features < 1 || config.features > 16 || config.log2_table < 1 ||
+      config.log2_table > 30 || config.base_resolution < 1 || !(config.per_level_scale >= 1.0)) {
+    throw std::invalid_argument(
+        "hash grid: needs levels >= 1, features 1..16, log2_table 1..30, base_resolution >= 1, "
+        "per_level_scale >= 1");
   }
   entries_ = size_t{1} << config.log2_table;
   for (int l = 0; l < config.levels; ++l) {
-    const int res = static_cast<int>(std::floor(config.base_resolution * std::pow(config.per_level_scale, l)));
+    const int res =
+        static_cast<int>(std::floor(config.base_resolution * std::pow(config.per_level_scale, l)));
     const uint64_t side = static_cast<uint64_t>(res) + 1;
     resolution_.push_back(res);
     dense_.push_back(side * side * side <= entries_ ? 1 : 0);
   }
-  const size_t n = static_cast<size_t>(config.levels) * entries_ * static_cast<size_t>(config.features);
+  const size_t n =
+      static_cast<size_t>(config.levels) * entries_ * static_cast<size_t>(config.features);
   table_.resize(n);
   grad_.assign(n, T(0));
   touched_.assign(static_cast<size_t>(config.levels) * entries_, 0);
@@ -33,7 +37,8 @@ HashGrid<T>::HashGrid(const HashGridConfig& config, uint64_t seed) : config_(con
 
 namespace {
 
-constexpr int kChunk = 64;  // samples whose corners and weights are computed together (SIMD over samples)
+constexpr int kChunk =
+    64;  // samples whose corners and weights are computed together (SIMD over samples)
 
 // One level's geometry: the corner entries (offsets within the level's slice) and trilinear
 // weights of a chunk of samples, in structure-of-arrays form so that the compiler vectorises over
@@ -44,7 +49,8 @@ struct LevelChunk {
   T w[8][kChunk];  // trilinear weights
   T f[3][kChunk];  // fractional position in the cell
 
-  void compute(const T* px, const T* py, const T* pz, int count, int res, bool dense, uint32_t mask) {
+  void compute(const T* px, const T* py, const T* pz, int count, int res, bool dense,
+               uint32_t mask) {
     const T scale = T(res);
     const int last = res - 1;
     const T* p[3] = {px, py, pz};
@@ -77,7 +83,8 @@ struct LevelChunk {
       // The spatial hash; its low bits are those of 32-bit products.
       for (int k = 0; k < count; ++k) {
         const uint32_t x = cell[0][k], y = cell[1][k] * 2654435761u, z = cell[2][k] * 805459861u;
-        const uint32_t hx[2] = {x, x + 1}, hy[2] = {y, y + 2654435761u}, hz[2] = {z, z + 805459861u};
+        const uint32_t hx[2] = {x, x + 1}, hy[2] = {y, y + 2654435761u},
+                       hz[2] = {z, z + 805459861u};
         for (int c = 0; c < 8; ++c) idx[c][k] = (hx[c & 1] ^ hy[(c >> 1) & 1] ^ hz[c >> 2]) & mask;
       }
     }
@@ -87,8 +94,8 @@ struct LevelChunk {
 // Encodes one level of n samples: out[k stride + j]. F > 0 is a compile-time feature count
 // (unrolled and vectorised), F = 0 takes it from `features`.
 template <int F, typename T>
-void encodeLevel(const T* const* p, Eigen::Index n, int res, bool dense, uint32_t mask, const T* slice, int features, T* out,
-                 Eigen::Index stride) {
+void encodeLevel(const T* const* p, Eigen::Index n, int res, bool dense, uint32_t mask,
+                 const T* slice, int features, T* out, Eigen::Index stride) {
   const int nf = F > 0 ? F : features;
   LevelChunk<T> chunk;
   for (Eigen::Index begin = 0; begin < n; begin += kChunk) {
@@ -111,8 +118,9 @@ void encodeLevel(const T* const* p, Eigen::Index n, int res, bool dense, uint32_
 // entries, and adds d(sum g . features)/d(position) (in grid units times res) into dp (n x 3, one
 // array per axis, masked by `inside`).
 template <int F, typename T>
-void encodeLevelBackward(const T* const* p, Eigen::Index n, int res, bool dense, uint32_t mask, const T* slice, int features, const T* g,
-                         T* grad, uint8_t* touched, const uint8_t* inside, T* dp) {
+void encodeLevelBackward(const T* const* p, Eigen::Index n, int res, bool dense, uint32_t mask,
+                         const T* slice, int features, const T* g, T* grad, uint8_t* touched,
+                         const uint8_t* inside, T* dp) {
   const int nf = F > 0 ? F : features;
   const T scale = T(res);
   LevelChunk<T> chunk;
@@ -120,7 +128,8 @@ void encodeLevelBackward(const T* const* p, Eigen::Index n, int res, bool dense,
   for (Eigen::Index begin = 0; begin < n; begin += kChunk) {
     const int count = static_cast<int>(std::min<Eigen::Index>(kChunk, n - begin));
     chunk.compute(p[0] + begin, p[1] + begin, p[2] + begin, count, res, dense, mask);
-    // The scatter: a read-modify-write per corner (entries repeat, so it stays scalar over samples).
+    // The scatter: a read-modify-write per corner (entries repeat, so it stays scalar over
+    // samples).
     for (int k = 0; k < count; ++k) {
       const T* gk = g + (begin + k) * nf;
       for (int c = 0; c < 8; ++c) {
@@ -151,12 +160,16 @@ void encodeLevelBackward(const T* const* p, Eigen::Index n, int res, bool dense,
     T* dz = dp + 2 * n + begin;
     const uint8_t* in = inside + begin;
     for (int k = 0; k < count; ++k) {
-      const T gx = chunk.f[0][k], hx = T(1) - gx, gy = chunk.f[1][k], hy = T(1) - gy, gz = chunk.f[2][k], hz = T(1) - gz;
-      const T d0 = dot[0][k], d1 = dot[1][k], d2 = dot[2][k], d3 = dot[3][k], d4 = dot[4][k], d5 = dot[5][k], d6 = dot[6][k],
-              d7 = dot[7][k];
-      const T ddx = hy * hz * (d1 - d0) + gy * hz * (d3 - d2) + hy * gz * (d5 - d4) + gy * gz * (d7 - d6);
-      const T ddy = hx * hz * (d2 - d0) + gx * hz * (d3 - d1) + hx * gz * (d6 - d4) + gx * gz * (d7 - d5);
-      const T ddz = hx * hy * (d4 - d0) + gx * hy * (d5 - d1) + hx * gy * (d6 - d2) + gx * gy * (d7 - d3);
+      const T gx = chunk.f[0][k], hx = T(1) - gx, gy = chunk.f[1][k], hy = T(1) - gy,
+              gz = chunk.f[2][k], hz = T(1) - gz;
+      const T d0 = dot[0][k], d1 = dot[1][k], d2 = dot[2][k], d3 = dot[3][k], d4 = dot[4][k],
+              d5 = dot[5][k], d6 = dot[6][k], d7 = dot[7][k];
+      const T ddx =
+          hy * hz * (d1 - d0) + gy * hz * (d3 - d2) + hy * gz * (d5 - d4) + gy * gz * (d7 - d6);
+      const T ddy =
+          hx * hz * (d2 - d0) + gx * hz * (d3 - d1) + hx * gz * (d6 - d4) + gx * gz * (d7 - d5);
+      const T ddz =
+          hx * hy * (d4 - d0) + gx * hy * (d5 - d1) + hx * gy * (d6 - d2) + gx * gy * (d7 - d3);
       dx[k] += (in[k] & 1) ? ddx * scale : T(0);
       dy[k] += (in[k] & 2) ? ddy * scale : T(0);
       dz[k] += (in[k] & 4) ? ddz * scale : T(0);
@@ -184,9 +197,11 @@ void HashGrid<T>::setPositions(const Matrix& positions) {
 }
 
 template <typename T>
-void HashGrid<T>::encode(Eigen::Index begin, Eigen::Index count, T* out, Eigen::Index stride) const {
+void HashGrid<T>::encode(Eigen::Index begin, Eigen::Index count, T* out,
+                         Eigen::Index stride) const {
   const int F = config_.features;
-  const T* p[3] = {positions_.col(0).data() + begin, positions_.col(1).data() + begin, positions_.col(2).data() + begin};
+  const T* p[3] = {positions_.col(0).data() + begin, positions_.col(1).data() + begin,
+                   positions_.col(2).data() + begin};
   const uint32_t mask = static_cast<uint32_t>(entries_ - 1);
   for (int l = 0; l < config_.levels; ++l) {
     const int res = resolution_[static_cast<size_t>(l)];
@@ -194,10 +209,18 @@ void HashGrid<T>::encode(Eigen::Index begin, Eigen::Index count, T* out, Eigen::
     const T* slice = table_.data() + static_cast<size_t>(l) * entries_ * static_cast<size_t>(F);
     T* o = out + l * F;
     switch (F) {
-      case 2: encodeLevel<2>(p, count, res, dense, mask, slice, F, o, stride); break;
-      case 4: encodeLevel<4>(p, count, res, dense, mask, slice, F, o, stride); break;
-      case 8: encodeLevel<8>(p, count, res, dense, mask, slice, F, o, stride); break;
-      default: encodeLevel<0>(p, count, res, dense, mask, slice, F, o, stride); break;
+      case 2:
+        encodeLevel<2>(p, count, res, dense, mask, slice, F, o, stride);
+        break;
+      case 4:
+        encodeLevel<4>(p, count, res, dense, mask, slice, F, o, stride);
+        break;
+      case 8:
+        encodeLevel<8>(p, count, res, dense, mask, slice, F, o, stride);
+        break;
+      default:
+        encodeLevel<0>(p, count, res, dense, mask, slice, F, o, stride);
+        break;
     }
   }
 }
@@ -223,12 +246,25 @@ typename HashGrid<T>::Matrix HashGrid<T>::backwardLevelMajor(const T* d_features
       const T* slice = table_.data() + offset * static_cast<size_t>(F);
       T* grad = grad_.data() + offset * static_cast<size_t>(F);
       uint8_t* touched = touched_.data() + offset;
-      const T* g = d_features + static_cast<size_t>(l) * static_cast<size_t>(n) * static_cast<size_t>(F);
+      const T* g =
+          d_features + static_cast<size_t>(l) * static_cast<size_t>(n) * static_cast<size_t>(F);
       switch (F) {
-        case 2: encodeLevelBackward<2>(p, n, res, dense, mask, slice, F, g, grad, touched, inside_.data(), local.data()); break;
-        case 4: encodeLevelBackward<4>(p, n, res, dense, mask, slice, F, g, grad, touched, inside_.data(), local.data()); break;
-        case 8: encodeLevelBackward<8>(p, n, res, dense, mask, slice, F, g, grad, touched, inside_.data(), local.data()); break;
-        default: encodeLevelBackward<0>(p, n, res, dense, mask, slice, F, g, grad, touched, inside_.data(), local.data()); break;
+        case 2:
+          encodeLevelBackward<2>(p, n, res, dense, mask, slice, F, g, grad, touched, inside_.data(),
+                                 local.data());
+          break;
+        case 4:
+          encodeLevelBackward<4>(p, n, res, dense, mask, slice, F, g, grad, touched, inside_.data(),
+                                 local.data());
+          break;
+        case 8:
+          encodeLevelBackward<8>(p, n, res, dense, mask, slice, F, g, grad, touched, inside_.data(),
+                                 local.data());
+          break;
+        default:
+          encodeLevelBackward<0>(p, n, res, dense, mask, slice, F, g, grad, touched, inside_.data(),
+                                 local.data());
+          break;
       }
     }
   }
@@ -259,7 +295,8 @@ typename HashGrid<T>::Matrix HashGrid<T>::backward(const Matrix& d_features) {
   std::vector<T> level_major(static_cast<size_t>(outputSize() * n));
   for (int l = 0; l < config_.levels; ++l) {
     for (Eigen::Index k = 0; k < n; ++k) {
-      for (Eigen::Index c = 0; c < F; ++c) level_major[static_cast<size_t>((l * n + k) * F + c)] = d_features(l * F + c, k);
+      for (Eigen::Index c = 0; c < F; ++c)
+        level_major[static_cast<size_t>((l * n + k) * F + c)] = d_features(l * F + c, k);
     }
   }
   return backwardLevelMajor(level_major.data());

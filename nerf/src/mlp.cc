@@ -7,7 +7,8 @@
 namespace evkit::nerf {
 
 template <typename T>
-Mlp<T>::Mlp(std::vector<int> widths, int skip_layer, uint64_t seed) : widths_(std::move(widths)), skip_(skip_layer) {
+Mlp<T>::Mlp(std::vector<int> widths, int skip_layer, uint64_t seed)
+    : widths_(std::move(widths)), skip_(skip_layer) {
   assert(widths_.size() >= 2);
   std::mt19937_64 rng(seed);
   const size_t layers = widths_.size() - 1;
@@ -56,7 +57,8 @@ typename Mlp<T>::Matrix Mlp<T>::backward(const Matrix& dy) {
   Matrix d = dy;
   Matrix d_input = Matrix::Zero(widths_[0], dy.cols());
   for (size_t l = w_.size(); l-- > 0;) {
-    if (l + 1 < w_.size()) d = d.cwiseProduct((pre_[l].array() > T(0)).template cast<T>().matrix());  // ReLU
+    if (l + 1 < w_.size())
+      d = d.cwiseProduct((pre_[l].array() > T(0)).template cast<T>().matrix());  // ReLU
     dw_[l].noalias() += d * inputs_[l].transpose();
     db_[l] += d.rowwise().sum();
     Matrix dh = w_[l].transpose() * d;
@@ -105,8 +107,8 @@ void Mlp<T>::zeroGradients() {
 }
 
 template <typename T>
-Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic> positionalEncoding(const Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>& p,
-                                                                   int frequencies) {
+Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic> positionalEncoding(
+    const Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>& p, int frequencies) {
   const Eigen::Index d = p.rows();
   Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic> out(d * (1 + 2 * frequencies), p.cols());
   out.topRows(d) = p;
@@ -119,9 +121,9 @@ Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic> positionalEncoding(const Eigen:
 }
 
 template <typename T>
-Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic> positionalEncodingBackward(const Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>& p,
-                                                                           int frequencies,
-                                                                           const Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>& de) {
+Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic> positionalEncodingBackward(
+    const Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>& p, int frequencies,
+    const Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>& de) {
   const Eigen::Index d = p.rows();
   Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic> dp = de.topRows(d);
   for (int k = 0; k < frequencies; ++k) {
@@ -136,7 +138,9 @@ template class Mlp<float>;
 template class Mlp<double>;
 template Eigen::MatrixXf positionalEncoding(const Eigen::MatrixXf&, int);
 template Eigen::MatrixXd positionalEncoding(const Eigen::MatrixXd&, int);
-template Eigen::MatrixXf positionalEncodingBackward(const Eigen::MatrixXf&, int, const Eigen::MatrixXf&);
-template Eigen::MatrixXd positionalEncodingBackward(const Eigen::MatrixXd&, int, const Eigen::MatrixXd&);
+template Eigen::MatrixXf positionalEncodingBackward(const Eigen::MatrixXf&, int,
+                                                    const Eigen::MatrixXf&);
+template Eigen::MatrixXd positionalEncodingBackward(const Eigen::MatrixXd&, int,
+                                                    const Eigen::MatrixXd&);
 
 }  // namespace evkit::nerf

@@ -10,7 +10,8 @@
 namespace evkit::nerf {
 
 template <typename T>
-void RayBatch<T>::setRays(const std::vector<SE3>& poses, std::vector<PixelRay> rays, const float* jitter) {
+void RayBatch<T>::setRays(const std::vector<SE3>& poses, std::vector<PixelRay> rays,
+                          const float* jitter) {
   poses_ = poses;
   rays_ = std::move(rays);
   samples_ = options_.samples;
@@ -23,7 +24,8 @@ void RayBatch<T>::setRays(const std::vector<SE3>& poses, std::vector<PixelRay> r
   for (int r = 0; r < R; ++r) {
     const PixelRay& ray = rays_[static_cast<size_t>(r)];
     ndc_[static_cast<size_t>(r)] =
-        toNdc(worldRay(camera_, poses_[static_cast<size_t>(ray.pose)], ray.x, ray.y), camera_, options_.near);
+        toNdc(worldRay(camera_, poses_[static_cast<size_t>(ray.pose)], ray.x, ray.y), camera_,
+              options_.near);
     T* t = &t_[static_cast<size_t>(r) * S];
     for (int j = 0; j < S; ++j) {
       const T u = jitter ? static_cast<T>(jitter[static_cast<size_t>(r) * S + j]) : T(0.5);
@@ -46,7 +48,8 @@ void RayBatch<T>::placeSamples(int r, const T* t) {
     const Eigen::Index col = static_cast<Eigen::Index>(o) + j;
     positions_(0, col) = static_cast<T>(ray.origin.x() + tj * ray.direction.x());
     positions_(1, col) = static_cast<T>(ray.origin.y() + tj * ray.direction.y());
-    positions_(2, col) = static_cast<T>(options_.depth_scale * (ray.origin.z() + tj * ray.direction.z()));
+    positions_(2, col) =
+        static_cast<T>(options_.depth_scale * (ray.origin.z() + tj * ray.direction.z()));
   }
 }
 
@@ -56,7 +59,8 @@ void RayBatch<T>::refine(RadianceField<T>& field, int extra, float shift) {
   const int R = size(), S = samples_;
   const Matrix out = field.forward(positions_);
   std::vector<float> u(static_cast<size_t>(extra));
-  for (int k = 0; k < extra; ++k) u[static_cast<size_t>(k)] = (static_cast<float>(k) + shift) / static_cast<float>(extra);
+  for (int k = 0; k < extra; ++k)
+    u[static_cast<size_t>(k)] = (static_cast<float>(k) + shift) / static_cast<float>(extra);
   std::vector<std::vector<T>> refined(static_cast<size_t>(R));
 #pragma omp parallel for schedule(static)
   for (int r = 0; r < R; ++r) {
@@ -65,7 +69,8 @@ void RayBatch<T>::refine(RadianceField<T>& field, int extra, float shift) {
     std::vector<float> t(static_cast<size_t>(S)), w(static_cast<size_t>(S));
     T transmittance = 1;
     for (int j = 0; j < S; ++j) {
-      const T tau = std::min(std::max(out(0, static_cast<Eigen::Index>(o) + j), T(0)) * delta_[o + j], T(80));
+      const T tau =
+          std::min(std::max(out(0, static_cast<Eigen::Index>(o) + j), T(0)) * delta_[o + j], T(80));
       const T alpha = T(1) - std::exp(-tau);
       w[static_cast<size_t>(j)] = static_cast<float>(transmittance * alpha);
       transmittance *= T(1) - alpha;
@@ -110,12 +115,14 @@ void RayBatch<T>::forward(RadianceField<T>& field, bool with_gradients) {
       for (int c = 0; c < C; ++c) colours[static_cast<size_t>(j) * C + c] = out_(1 + c, col);
     }
     const size_t o = static_cast<size_t>(r) * S;
-    renders_[static_cast<size_t>(r)] = renderRay(sigma.data(), colours.data(), &delta_[o], &t_[o], static_cast<size_t>(S), C, options_.render);
+    renders_[static_cast<size_t>(r)] = renderRay(sigma.data(), colours.data(), &delta_[o], &t_[o],
+                                                 static_cast<size_t>(S), C, options_.render);
   }
 }
 
 template <typename T>
-std::vector<Vector6> RayBatch<T>::backward(RadianceField<T>& field, const std::vector<T>& d_colour, bool pose_gradients) {
+std::vector<Vector6> RayBatch<T>::backward(RadianceField<T>& field, const std::vector<T>& d_colour,
+                                           bool pose_gradients) {
   const int R = size(), S = samples_, C = field.channels();
   Matrix d_out(1 + C, static_cast<Eigen::Index>(R) * S);
   // dL/d|d| per ray: the interval lengths scale with the NDC direction's length, tau_j = sigma_j
@@ -127,17 +134,21 @@ std::vector<Vector6> RayBatch<T>::backward(RadianceField<T>& field, const std::v
     std::vector<T> sigma(static_cast<size_t>(S)), colours(static_cast<size_t>(S) * C);
     for (int j = 0; j < S; ++j) {
       sigma[static_cast<size_t>(j)] = out_(0, static_cast<Eigen::Index>(o) + j);
-      for (int c = 0; c < C; ++c) colours[static_cast<size_t>(j) * C + c] = out_(1 + c, static_cast<Eigen::Index>(o) + j);
+      for (int c = 0; c < C; ++c)
+        colours[static_cast<size_t>(j) * C + c] = out_(1 + c, static_cast<Eigen::Index>(o) + j);
     }
     std::vector<T> d_sigma(static_cast<size_t>(S)), d_colours(static_cast<size_t>(S) * C);
-    renderRayBackward(sigma.data(), colours.data(), &delta_[o], static_cast<size_t>(S), C, options_.render,
-                      renders_[static_cast<size_t>(r)], &d_colour[static_cast<size_t>(r) * 3], d_sigma.data(), d_colours.data());
+    renderRayBackward(sigma.data(), colours.data(), &delta_[o], static_cast<size_t>(S), C,
+                      options_.render, renders_[static_cast<size_t>(r)],
+                      &d_colour[static_cast<size_t>(r) * 3], d_sigma.data(), d_colours.data());
     double dl = 0;
-    for (int j = 0; j < S; ++j) dl += static_cast<double>(d_sigma[static_cast<size_t>(j)] * sigma[static_cast<size_t>(j)]);
+    for (int j = 0; j < S; ++j)
+      dl += static_cast<double>(d_sigma[static_cast<size_t>(j)] * sigma[static_cast<size_t>(j)]);
     d_length[static_cast<size_t>(r)] = dl / ndc_[static_cast<size_t>(r)].direction.norm();
     for (int j = 0; j < S; ++j) {
       d_out(0, static_cast<Eigen::Index>(o) + j) = d_sigma[static_cast<size_t>(j)];
-      for (int c = 0; c < C; ++c) d_out(1 + c, static_cast<Eigen::Index>(o) + j) = d_colours[static_cast<size_t>(j) * C + c];
+      for (int c = 0; c < C; ++c)
+        d_out(1 + c, static_cast<Eigen::Index>(o) + j) = d_colours[static_cast<size_t>(j) * C + c];
     }
   }
   const Matrix d_positions = field.backward(d_out);
@@ -147,12 +158,14 @@ std::vector<Vector6> RayBatch<T>::backward(RadianceField<T>& field, const std::v
   // sum_j J(t_j)^T g_j = J(0)^T sum_j (1 - t_j) g_j + J(1)^T sum_j t_j g_j; and d = p(1) - p(0), so
   // the length term adds (J(1) - J(0))^T (d / |d|) dL/d|d|.
   const int threads = omp_get_max_threads();
-  std::vector<std::vector<Vector6>> per_thread(static_cast<size_t>(threads), std::vector<Vector6>(poses_.size(), Vector6::Zero()));
+  std::vector<std::vector<Vector6>> per_thread(
+      static_cast<size_t>(threads), std::vector<Vector6>(poses_.size(), Vector6::Zero()));
 #pragma omp parallel for schedule(static)
   for (int r = 0; r < R; ++r) {
     Eigen::Vector3d g0 = Eigen::Vector3d::Zero(), g1 = Eigen::Vector3d::Zero();
     for (int j = 0; j < S; ++j) {
-      Eigen::Vector3d g = d_positions.col(static_cast<Eigen::Index>(r) * S + j).template cast<double>();
+      Eigen::Vector3d g =
+          d_positions.col(static_cast<Eigen::Index>(r) * S + j).template cast<double>();
       g.z() *= options_.depth_scale;  // the field saw depth_scale * z
       const double t = static_cast<double>(t_[static_cast<size_t>(r) * S + static_cast<size_t>(j)]);
       g0 += (1 - t) * g;

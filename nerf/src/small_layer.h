@@ -3,10 +3,10 @@
 // product for these shapes: for a 64 x 32 weight and a few hundred samples, Eigen packs both
 // operands on every call; here the weight columns stream
 // from L1 while 16 accumulators stay in registers (4 samples x 64 outputs, or 4 inputs x 64
-// outputs). Written with the generic vector type of GCC and Clang. Built only for targets with AVX-512 (EVKIT_SMALL_LAYER is then 1): there a 16-float vector is one
-// register; with narrower vectors 16 accumulators of 16 floats would not fit the register file, and
-// Eigen's products are used instead. Sums run in a fixed order: the results depend only on the
-// inputs.
+// outputs). Written with the generic vector type of GCC and Clang. Built only for targets with
+// AVX-512 (EVKIT_SMALL_LAYER is then 1): there a 16-float vector is one register; with narrower
+// vectors 16 accumulators of 16 floats would not fit the register file, and Eigen's products are
+// used instead. Sums run in a fixed order: the results depend only on the inputs.
 #pragma once
 
 #if defined(__AVX512F__) && defined(__GNUC__)
@@ -16,7 +16,8 @@
 
 namespace evkit::nerf::small_layer {
 
-using V16 = float __attribute__((vector_size(64)));  // loads and stores through memcpy: no alignment needed
+using V16 =
+    float __attribute__((vector_size(64)));  // loads and stores through memcpy: no alignment needed
 
 inline V16 load(const float* p) {
   V16 v;
@@ -55,7 +56,8 @@ void product(const float* A, const float* bias, int inner, const float* in, int 
       }
     }
     for (int i = 0; i < 4; ++i) {
-      for (int v = 0; v < kV; ++v) store(out + static_cast<size_t>(s + i) * kRows + 16 * v, finish(acc[i][v]));
+      for (int v = 0; v < kV; ++v)
+        store(out + static_cast<size_t>(s + i) * kRows + 16 * v, finish(acc[i][v]));
     }
   }
   for (; s < count; ++s) {
@@ -65,7 +67,8 @@ void product(const float* A, const float* bias, int inner, const float* in, int 
       const V16 xk = splat(in[static_cast<size_t>(s) * inner + k]);
       for (int v = 0; v < kV; ++v) acc[v] += load(A + static_cast<size_t>(k) * kRows + 16 * v) * xk;
     }
-    for (int v = 0; v < kV; ++v) store(out + static_cast<size_t>(s) * kRows + 16 * v, finish(acc[v]));
+    for (int v = 0; v < kV; ++v)
+      store(out + static_cast<size_t>(s) * kRows + 16 * v, finish(acc[v]));
   }
 }
 
@@ -84,7 +87,8 @@ void weightGradient(const float* dh, const float* x, int inputs, int count, floa
     const int kn = inputs - k < 4 ? inputs - k : 4;
     V16 acc[4][kV];
     for (int j = 0; j < kn; ++j) {
-      for (int v = 0; v < kV; ++v) acc[j][v] = load(dW + static_cast<size_t>(k + j) * kHidden + 16 * v);
+      for (int v = 0; v < kV; ++v)
+        acc[j][v] = load(dW + static_cast<size_t>(k + j) * kHidden + 16 * v);
     }
     for (int s = 0; s < count; ++s) {
       V16 d[kV];
@@ -96,7 +100,8 @@ void weightGradient(const float* dh, const float* x, int inputs, int count, floa
       }
     }
     for (int j = 0; j < kn; ++j) {
-      for (int v = 0; v < kV; ++v) store(dW + static_cast<size_t>(k + j) * kHidden + 16 * v, acc[j][v]);
+      for (int v = 0; v < kV; ++v)
+        store(dW + static_cast<size_t>(k + j) * kHidden + 16 * v, acc[j][v]);
     }
   }
 }
@@ -113,7 +118,8 @@ void inputGradient(const float* Wt, int hidden, const float* dh, int count, floa
 // db += sum_s dh(:, s); dWt += sum_s h(:, s) dy(:, s)^T (the output layer's weight gradient,
 // transposed).
 template <int kHidden, int kOut>
-void outputLayerBackward(const float* Wt, const float* h, const float* dy, int count, float* dh, float* db, float* dWt) {
+void outputLayerBackward(const float* Wt, const float* h, const float* dy, int count, float* dh,
+                         float* db, float* dWt) {
   constexpr int kV = kHidden / 16;
   {
     V16 w[kOut][kV], bias[kV];

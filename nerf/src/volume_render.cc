@@ -19,15 +19,17 @@ T finite(T v) {
 }  // namespace
 
 template <typename T>
-RayRender<T> renderRay(const T* sigma, const T* colours, const T* delta, const T* t, size_t n, int channels,
-                       const RenderSettings& settings) {
+RayRender<T> renderRay(const T* sigma, const T* colours, const T* delta, const T* t, size_t n,
+                       int channels, const RenderSettings& settings) {
   RayRender<T> out;
   T transmittance = 1;
   size_t j = 0;
   for (; j < n && transmittance >= T(settings.early_stop); ++j) {
     const T alpha = T(1) - std::exp(-opticalDepth(sigma[j], delta[j]));
     const T w = transmittance * alpha;
-    for (int c = 0; c < channels; ++c) out.colour[c] += w * finite(colours[j * static_cast<size_t>(channels) + static_cast<size_t>(c)]);
+    for (int c = 0; c < channels; ++c)
+      out.colour[c] +=
+          w * finite(colours[j * static_cast<size_t>(channels) + static_cast<size_t>(c)]);
     out.opacity += w;
     if (t) out.depth += w * t[j];
     transmittance *= T(1) - alpha;
@@ -38,8 +40,9 @@ RayRender<T> renderRay(const T* sigma, const T* colours, const T* delta, const T
 }
 
 template <typename T>
-void renderRayBackward(const T* sigma, const T* colours, const T* delta, size_t n, int channels, const RenderSettings& /*settings*/,
-                       const RayRender<T>& forward, const T* d_colour, T* d_sigma, T* d_colours) {
+void renderRayBackward(const T* sigma, const T* colours, const T* delta, size_t n, int channels,
+                       const RenderSettings& /*settings*/, const RayRender<T>& forward,
+                       const T* d_colour, T* d_sigma, T* d_colours) {
   std::fill(d_sigma, d_sigma + n, T(0));
   std::fill(d_colours, d_colours + n * static_cast<size_t>(channels), T(0));
   // S (colour behind the current sample) starts as the full colour and loses each sample's share.
@@ -65,11 +68,15 @@ void renderRayBackward(const T* sigma, const T* colours, const T* delta, size_t 
   }
 }
 
-template RayRender<float> renderRay(const float*, const float*, const float*, const float*, size_t, int, const RenderSettings&);
-template RayRender<double> renderRay(const double*, const double*, const double*, const double*, size_t, int, const RenderSettings&);
-template void renderRayBackward(const float*, const float*, const float*, size_t, int, const RenderSettings&, const RayRender<float>&,
-                                const float*, float*, float*);
-template void renderRayBackward(const double*, const double*, const double*, size_t, int, const RenderSettings&,
-                                const RayRender<double>&, const double*, double*, double*);
+template RayRender<float> renderRay(const float*, const float*, const float*, const float*, size_t,
+                                    int, const RenderSettings&);
+template RayRender<double> renderRay(const double*, const double*, const double*, const double*,
+                                     size_t, int, const RenderSettings&);
+template void renderRayBackward(const float*, const float*, const float*, size_t, int,
+                                const RenderSettings&, const RayRender<float>&, const float*,
+                                float*, float*);
+template void renderRayBackward(const double*, const double*, const double*, size_t, int,
+                                const RenderSettings&, const RayRender<double>&, const double*,
+                                double*, double*);
 
 }  // namespace evkit::nerf

@@ -13,7 +13,8 @@ namespace {
 
 constexpr double kRadToDeg = 180.0 / std::numbers::pi;
 
-// Time of knot k's influence peak: cubic knots sit one spacing before their segment; linear ones at it.
+// Time of knot k's influence peak: cubic knots sit one spacing before their segment; linear ones at
+// it.
 int64_t knotTime(TrajectoryKind kind, int k, int knots, int64_t t_begin, int64_t t_end) {
   const int segments = knots - (kind == TrajectoryKind::kLinear ? 1 : 3);
   const int offset = kind == TrajectoryKind::kLinear ? 0 : 1;
@@ -23,7 +24,8 @@ int64_t knotTime(TrajectoryKind kind, int k, int knots, int64_t t_begin, int64_t
 double weightedCost(const Trajectory& traj, const std::vector<StampedPose>& poses, double w_rot) {
   double cost = 0;
   for (const StampedPose& sp : poses) {
-    Vector6 r = logSE3(traj.poseAt(std::clamp(sp.t_us, traj.beginUs(), traj.endUs())).inverse() * sp.pose);
+    Vector6 r =
+        logSE3(traj.poseAt(std::clamp(sp.t_us, traj.beginUs(), traj.endUs())).inverse() * sp.pose);
     r.tail<3>() *= w_rot;
     cost += r.squaredNorm();
   }
@@ -33,14 +35,17 @@ double weightedCost(const Trajectory& traj, const std::vector<StampedPose>& pose
 }  // namespace
 
 Trajectory fitTrajectory(TrajectoryKind kind, int knots, int64_t t_begin_us, int64_t t_end_us,
-                         const std::vector<StampedPose>& poses, const FitOptions& options, FitReport* report) {
+                         const std::vector<StampedPose>& poses, const FitOptions& options,
+                         FitReport* report) {
   if (poses.empty()) throw std::invalid_argument("fitTrajectory: no poses");
   std::vector<SE3> init(static_cast<size_t>(std::max(knots, Trajectory::minimumKnots(kind))));
   for (size_t k = 0; k < init.size(); ++k) {
-    const int64_t tk = knotTime(kind, static_cast<int>(k), static_cast<int>(init.size()), t_begin_us, t_end_us);
-    const auto nearest = std::min_element(poses.begin(), poses.end(), [&](const StampedPose& a, const StampedPose& b) {
-      return std::llabs(a.t_us - tk) < std::llabs(b.t_us - tk);
-    });
+    const int64_t tk =
+        knotTime(kind, static_cast<int>(k), static_cast<int>(init.size()), t_begin_us, t_end_us);
+    const auto nearest = std::min_element(
+        poses.begin(), poses.end(), [&](const StampedPose& a, const StampedPose& b) {
+          return std::llabs(a.t_us - tk) < std::llabs(b.t_us - tk);
+        });
     init[k] = nearest->pose;
   }
   Trajectory traj(kind, t_begin_us, t_end_us, std::move(init));
@@ -99,7 +104,8 @@ Trajectory fitTrajectory(TrajectoryKind kind, int knots, int64_t t_begin_us, int
   return traj;
 }
 
-Similarity alignPositions(const std::vector<Vector3>& est, const std::vector<Vector3>& truth, Alignment alignment) {
+Similarity alignPositions(const std::vector<Vector3>& est, const std::vector<Vector3>& truth,
+                          Alignment alignment) {
   Similarity sim;
   if (alignment == Alignment::kNone || est.empty()) return sim;
   const double n = static_cast<double>(est.size());
@@ -134,11 +140,12 @@ Similarity alignPositions(const std::vector<Vector3>& est, const std::vector<Vec
   return sim;
 }
 
-TrajectoryErrors compareTrajectories(const std::vector<SE3>& estimate, const std::vector<SE3>& truth,
-                                     Alignment alignment) {
+TrajectoryErrors compareTrajectories(const std::vector<SE3>& estimate,
+                                     const std::vector<SE3>& truth, Alignment alignment) {
   if (estimate.size() != truth.size() || estimate.empty()) {
-    throw std::invalid_argument("compareTrajectories: " + std::to_string(estimate.size()) + " estimated poses against " +
-                                std::to_string(truth.size()) + " true ones");
+    throw std::invalid_argument("compareTrajectories: " + std::to_string(estimate.size()) +
+                                " estimated poses against " + std::to_string(truth.size()) +
+                                " true ones");
   }
   std::vector<Vector3> pe, pg;
   for (size_t i = 0; i < estimate.size(); ++i) {
@@ -148,8 +155,9 @@ TrajectoryErrors compareTrajectories(const std::vector<SE3>& estimate, const std
   const Similarity sim = alignPositions(pe, pg, alignment);
   std::vector<SE3> aligned;
   for (const SE3& T : estimate) {
-    aligned.emplace_back(sim.transform.rotation() * T.rotation(),
-                         sim.scale * (sim.transform.rotation() * T.translation()) + sim.transform.translation());
+    aligned.emplace_back(
+        sim.transform.rotation() * T.rotation(),
+        sim.scale * (sim.transform.rotation() * T.translation()) + sim.transform.translation());
   }
   TrajectoryErrors e;
   e.count = static_cast<int>(estimate.size());
@@ -160,7 +168,8 @@ TrajectoryErrors compareTrajectories(const std::vector<SE3>& estimate, const std
     const double angle = logSO3(truth[i].rotation().conjugate() * aligned[i].rotation()).norm();
     rot += angle * angle;
     if (i + 1 < aligned.size()) {
-      const SE3 rel = (truth[i].inverse() * truth[i + 1]).inverse() * (aligned[i].inverse() * aligned[i + 1]);
+      const SE3 rel =
+          (truth[i].inverse() * truth[i + 1]).inverse() * (aligned[i].inverse() * aligned[i + 1]);
       rpe_t += rel.translation().squaredNorm();
       const double a = logSO3(rel.rotation()).norm();
       rpe_r += a * a;

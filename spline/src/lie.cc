@@ -7,7 +7,7 @@ namespace evkit {
 namespace {
 
 // Series thresholds: below them the closed forms lose digits to cancellation.
-constexpr double kSeriesAngle = 1.0;        // for the coefficients of J_l, J_r and Q (10 terms)
+constexpr double kSeriesAngle = 1.0;         // for the coefficients of J_l, J_r and Q (10 terms)
 constexpr double kInverseSeriesAngle = 0.2;  // for the coefficient of J^-1 (6 terms)
 constexpr int kSeriesTerms = 10;
 
@@ -40,7 +40,10 @@ double inverseCoefficient(double theta) {
   if (theta < kInverseSeriesAngle) {
     // Bernoulli series of 1/x^2 - cot(x/2)/(2x).
     const double t2 = theta * theta;
-    return 1.0 / 12.0 + t2 * (1.0 / 720.0 + t2 * (1.0 / 30240.0 + t2 * (1.0 / 1209600.0 + t2 * (1.0 / 47900160.0 + t2 * (691.0 / 1307674368000.0)))));
+    return 1.0 / 12.0 +
+           t2 * (1.0 / 720.0 + t2 * (1.0 / 30240.0 + t2 * (1.0 / 1209600.0 +
+                                                           t2 * (1.0 / 47900160.0 +
+                                                                 t2 * (691.0 / 1307674368000.0)))));
   }
   return 1.0 / (theta * theta) - std::cos(0.5 * theta) / (2.0 * theta * std::sin(0.5 * theta));
 }
@@ -59,8 +62,9 @@ Quaternion expSO3(const Vector3& phi) {
   const double theta = phi.norm();
   const double half = 0.5 * theta;
   // sin(theta/2)/theta, with its series near 0: 1/2 - theta^2/48 + theta^4/3840.
-  const double s = theta < 1e-4 ? 0.5 - theta * theta / 48.0 + theta * theta * theta * theta / 3840.0
-                                 : std::sin(half) / theta;
+  const double s = theta < 1e-4
+                       ? 0.5 - theta * theta / 48.0 + theta * theta * theta * theta / 3840.0
+                       : std::sin(half) / theta;
   Quaternion q(std::cos(half), s * phi.x(), s * phi.y(), s * phi.z());
   return q.normalized();
 }
@@ -71,7 +75,8 @@ Vector3 logSO3(const Quaternion& q_in) {
   const Vector3 v = q.vec();
   const double n = v.norm();
   const double w = q.w();
-  // theta = 2 atan2(n, w); phi = theta v / n, whose factor 2 atan2(n, w)/n -> 2/w (1 - n^2/(3 w^2)).
+  // theta = 2 atan2(n, w); phi = theta v / n, whose factor 2 atan2(n, w)/n -> 2/w (1 - n^2/(3
+  // w^2)).
   if (n < 1e-8 * std::max(w, 1e-300)) return (2.0 / w) * (1.0 - n * n / (3.0 * w * w)) * v;
   return (2.0 * std::atan2(n, w) / n) * v;
 }
@@ -167,7 +172,8 @@ Matrix3 jacobianQ(const Vector3& rho, const Vector3& phi) {
   }
   const Matrix3 P = hat(phi), Rh = hat(rho);
   const Matrix3 PR = P * Rh, RP = Rh * P, PRP = PR * P;
-  return 0.5 * Rh + c1 * (PR + RP + PRP) + c2 * (P * PR + RP * P - 3.0 * PRP) + c3 * (PRP * P + P * PRP);
+  return 0.5 * Rh + c1 * (PR + RP + PRP) + c2 * (P * PR + RP * P - 3.0 * PRP) +
+         c3 * (PRP * P + P * PRP);
 }
 
 Matrix6 leftJacobianSE3(const Vector6& xi) {

@@ -12,7 +12,8 @@ namespace {
 // Cumulative basis B~_j(u), j = 0..3, and its derivative d/du.
 std::array<double, 4> cumulativeBasis(double u) {
   const double u2 = u * u, u3 = u2 * u;
-  return {1.0, (5.0 + 3.0 * u - 3.0 * u2 + u3) / 6.0, (1.0 + 3.0 * u + 3.0 * u2 - 2.0 * u3) / 6.0, u3 / 6.0};
+  return {1.0, (5.0 + 3.0 * u - 3.0 * u2 + u3) / 6.0, (1.0 + 3.0 * u + 3.0 * u2 - 2.0 * u3) / 6.0,
+          u3 / 6.0};
 }
 std::array<double, 4> cumulativeBasisDerivative(double u) {
   const double u2 = u * u;
@@ -34,15 +35,20 @@ std::string trajectoryKindName(TrajectoryKind kind) {
 }
 
 TrajectoryKind parseTrajectoryKind(const std::string& name) {
-  for (TrajectoryKind k : {TrajectoryKind::kCubicSE3, TrajectoryKind::kCubicSplit, TrajectoryKind::kLinear}) {
+  for (TrajectoryKind k :
+       {TrajectoryKind::kCubicSE3, TrajectoryKind::kCubicSplit, TrajectoryKind::kLinear}) {
     if (trajectoryKindName(k) == name) return k;
   }
-  throw std::invalid_argument("unknown trajectory kind '" + name + "' (known: cubic, split, linear)");
+  throw std::invalid_argument("unknown trajectory kind '" + name +
+                              "' (known: cubic, split, linear)");
 }
 
-int Trajectory::minimumKnots(TrajectoryKind kind) { return kind == TrajectoryKind::kLinear ? 2 : 4; }
+int Trajectory::minimumKnots(TrajectoryKind kind) {
+  return kind == TrajectoryKind::kLinear ? 2 : 4;
+}
 
-Trajectory::Trajectory(TrajectoryKind kind, int64_t t_begin_us, int64_t t_end_us, std::vector<SE3> knots)
+Trajectory::Trajectory(TrajectoryKind kind, int64_t t_begin_us, int64_t t_end_us,
+                       std::vector<SE3> knots)
     : kind_(kind), t_begin_(t_begin_us), t_end_(t_end_us), knots_(std::move(knots)) {
   if (static_cast<int>(knots_.size()) < minimumKnots(kind)) {
     throw std::invalid_argument("a " + trajectoryKindName(kind) + " trajectory needs at least " +
@@ -88,14 +94,16 @@ SE3 Trajectory::evaluate(double s, KnotJacobians* J, Vector6* velocity) const {
 //    - J_l^-1(Omega_j) delta_{i+j-1}.
 // Hence J_i = Ad((A_1A_2A_3)^-1) - D_1 J_l^-1(Omega_1), J_{i+j} = D_j J_r^-1(Omega_j)
 // - D_{j+1} J_l^-1(Omega_{j+1}) (j = 1, 2), J_{i+3} = D_3 J_r^-1(Omega_3)   (Sommer et al., CVPR
-// 2020, derive the same in a recursive form). Body velocity: sum_j Ad((A_{j+1}..A_3)^-1) b'_j Omega_j.
+// 2020, derive the same in a recursive form). Body velocity: sum_j Ad((A_{j+1}..A_3)^-1) b'_j
+// Omega_j.
 SE3 Trajectory::evaluateCubic(int i, double u, KnotJacobians* J, Vector6* velocity) const {
   const auto b = cumulativeBasis(u);
   std::array<Vector6, 4> omega;
   std::array<SE3, 4> A;
   SE3 pose = knots_[static_cast<size_t>(i)];
   for (int j = 1; j <= 3; ++j) {
-    omega[j] = logSE3(knots_[static_cast<size_t>(i + j - 1)].inverse() * knots_[static_cast<size_t>(i + j)]);
+    omega[j] = logSE3(knots_[static_cast<size_t>(i + j - 1)].inverse() *
+                      knots_[static_cast<size_t>(i + j)]);
     A[j] = expSE3(b[j] * omega[j]);
     pose = pose * A[j];
   }
@@ -139,7 +147,8 @@ SE3 Trajectory::evaluateSplit(int i, double u, KnotJacobians* J, Vector6* veloci
   Vector3 p = Vector3::Zero();
   for (int k = 0; k <= 3; ++k) p += B[k] * knots_[static_cast<size_t>(i + k)].translation();
   for (int j = 1; j <= 3; ++j) {
-    phi[j] = logSO3(knots_[static_cast<size_t>(i + j - 1)].rotation().conjugate() * knots_[static_cast<size_t>(i + j)].rotation());
+    phi[j] = logSO3(knots_[static_cast<size_t>(i + j - 1)].rotation().conjugate() *
+                    knots_[static_cast<size_t>(i + j)].rotation());
     A[j] = expSO3(b[j] * phi[j]);
     R = R * A[j];
   }

@@ -52,7 +52,8 @@ std::string formatSeconds(int64_t us) {
   const bool negative = us < 0;
   const uint64_t m = negative ? static_cast<uint64_t>(-(us + 1)) + 1 : static_cast<uint64_t>(us);
   char buf[40];
-  std::snprintf(buf, sizeof(buf), "%s%llu.%06llu", negative ? "-" : "", static_cast<unsigned long long>(m / 1000000),
+  std::snprintf(buf, sizeof(buf), "%s%llu.%06llu", negative ? "-" : "",
+                static_cast<unsigned long long>(m / 1000000),
                 static_cast<unsigned long long>(m % 1000000));
   return buf;
 }
@@ -74,21 +75,26 @@ std::vector<StampedPose> readTum(const std::string& path) {
     std::vector<std::string> fields;
     for (std::string f; in >> f;) fields.push_back(f);
     if (fields.size() != 8) {
-      throwAtLine(path, line_no, "expected 8 fields 't tx ty tz qx qy qz qw', found " + std::to_string(fields.size()));
+      throwAtLine(
+          path, line_no,
+          "expected 8 fields 't tx ty tz qx qy qz qw', found " + std::to_string(fields.size()));
     }
     int64_t t;
-    if (!parseSeconds(fields[0], t)) throwAtLine(path, line_no, "cannot read the time '" + fields[0] + "' (seconds)");
+    if (!parseSeconds(fields[0], t))
+      throwAtLine(path, line_no, "cannot read the time '" + fields[0] + "' (seconds)");
     double v[7];
     for (int k = 0; k < 7; ++k) {
       const std::string& f = fields[static_cast<size_t>(k + 1)];
       const auto [ptr, ec] = std::from_chars(f.data(), f.data() + f.size(), v[k]);
       if (ec != std::errc() || ptr != f.data() + f.size() || !std::isfinite(v[k])) {
-        throwAtLine(path, line_no, "field " + std::to_string(k + 2) + " '" + f + "' is not a finite number");
+        throwAtLine(path, line_no,
+                    "field " + std::to_string(k + 2) + " '" + f + "' is not a finite number");
       }
     }
     const Quaternion q(v[6], v[3], v[4], v[5]);
     if (std::abs(q.norm() - 1.0) > 1e-3) {
-      throwAtLine(path, line_no, "quaternion (qx qy qz qw) has norm " + std::to_string(q.norm()) + ", expected 1");
+      throwAtLine(path, line_no,
+                  "quaternion (qx qy qz qw) has norm " + std::to_string(q.norm()) + ", expected 1");
     }
     if (!poses.empty() && t < poses.back().t_us) throwAtLine(path, line_no, "time goes back");
     poses.push_back(StampedPose{t, SE3(q, Vector3(v[0], v[1], v[2]))});
@@ -103,8 +109,8 @@ void writeTum(const std::string& path, const std::vector<StampedPose>& poses) {
   for (const StampedPose& p : poses) {
     const Quaternion& q = p.pose.rotation();
     const Vector3& t = p.pose.translation();
-    std::snprintf(buf, sizeof(buf), " %.17g %.17g %.17g %.17g %.17g %.17g %.17g\n", t.x(), t.y(), t.z(), q.x(), q.y(),
-                  q.z(), q.w());
+    std::snprintf(buf, sizeof(buf), " %.17g %.17g %.17g %.17g %.17g %.17g %.17g\n", t.x(), t.y(),
+                  t.z(), q.x(), q.y(), q.z(), q.w());
     out << formatSeconds(p.t_us) << buf;
   }
   const std::string tmp = path + ".tmp-" + std::to_string(::getpid());
@@ -120,7 +126,8 @@ void writeTum(const std::string& path, const std::vector<StampedPose>& poses) {
   std::filesystem::rename(tmp, path);
 }
 
-std::vector<StampedPose> sampleTrajectory(const Trajectory& trajectory, const std::vector<int64_t>& times_us) {
+std::vector<StampedPose> sampleTrajectory(const Trajectory& trajectory,
+                                          const std::vector<int64_t>& times_us) {
   std::vector<StampedPose> out;
   out.reserve(times_us.size());
   for (int64_t t : times_us) out.push_back(StampedPose{t, trajectory.poseAt(t)});

@@ -7,8 +7,8 @@
 #include <random>
 #include <sstream>
 
-#include "evkit/events/atomic_file.h"
 #include "evkit/base/error.h"
+#include "evkit/events/atomic_file.h"
 #include "evkit/events/image_io.h"
 #include "evkit/events/io.h"
 #include "evkit/events/npy.h"
@@ -23,7 +23,8 @@ namespace {
 // The scene rendered along a trajectory: the simulator's programmatic source.
 class SceneSource final : public RenderSource {
  public:
-  SceneSource(const Scene& scene, const Calibration& camera, int w, int h, const Trajectory& traj, int supersample, double gain)
+  SceneSource(const Scene& scene, const Calibration& camera, int w, int h, const Trajectory& traj,
+              int supersample, double gain)
       : scene_(scene), camera_(camera), w_(w), h_(h), traj_(traj), gain_(gain) {
     options_.supersample = supersample;
   }
@@ -58,7 +59,8 @@ Trajectory scaled(const std::vector<Vector6>& xi, double s, int64_t t0, int64_t 
 
 }  // namespace
 
-double blurLengthPx(const Trajectory& trajectory, const Scene& scene, const Calibration& camera, int width, int height) {
+double blurLengthPx(const Trajectory& trajectory, const Scene& scene, const Calibration& camera,
+                    int width, int height) {
   const SE3 T_mid = trajectory.evaluate(0.5);
   cv::Mat depth;
   RenderOptions one;
@@ -71,12 +73,14 @@ double blurLengthPx(const Trajectory& trajectory, const Scene& scene, const Cali
       const int x = (gx + 1) * width / 9, y = (gy + 1) * height / 7;
       const float z = depth.at<float>(y, x);
       if (z <= 0) continue;
-      const Vector3 X = T_mid * (z * Vector3((x - camera.cx) / camera.fx, (y - camera.cy) / camera.fy, 1.0));
+      const Vector3 X =
+          T_mid * (z * Vector3((x - camera.cx) / camera.fx, (y - camera.cy) / camera.fy, 1.0));
       double length = 0;
       Eigen::Vector2d prev;
       for (int k = 0; k <= kSteps; ++k) {
         const Vector3 p = trajectory.evaluate(static_cast<double>(k) / kSteps).inverse() * X;
-        const Eigen::Vector2d uv(camera.fx * p.x() / p.z() + camera.cx, camera.fy * p.y() / p.z() + camera.cy);
+        const Eigen::Vector2d uv(camera.fx * p.x() / p.z() + camera.cx,
+                                 camera.fy * p.y() / p.z() + camera.cy);
         if (k > 0) length += (uv - prev).norm();
         prev = uv;
       }
@@ -86,8 +90,8 @@ double blurLengthPx(const Trajectory& trajectory, const Scene& scene, const Cali
   return longest;
 }
 
-Trajectory makeShake(const Scene& scene, const Calibration& camera, int width, int height, int64_t t_begin, int64_t t_end,
-                     const ShakeOptions& options) {
+Trajectory makeShake(const Scene& scene, const Calibration& camera, int width, int height,
+                     int64_t t_begin, int64_t t_end, const ShakeOptions& options) {
   std::mt19937_64 rng(options.seed * 0x9e3779b97f4a7c15ULL + 5);
   std::normal_distribution<double> n;
   // Knot tangents: rotation of ~0.01 rad, translation of ~1 cm, in random directions; the mix of
@@ -130,12 +134,15 @@ SynthReport writeObservation(const Scene& scene, const SynthOptions& o, const st
   cv::Mat blurry;
   AdaptiveOptions uniform;
   uniform.lambda = 1e30;  // never reject: a fixed step from the blur length
-  uniform.min_step_us = uniform.max_step_us = std::clamp<int64_t>(
-      static_cast<int64_t>(static_cast<double>(t1 - t0) * o.max_motion_px / std::max(report.blur_px, 1e-9)), 1, (t1 - t0) / 50);
-  const SimulatorStats stats = simulateAdaptive(source, t0, t1, driver, uniform, [&](const EventStore& ev, const std::vector<Frame>& done) {
-    if (!o.drop_events) writer->write(ev.view());
-    if (!done.empty()) blurry = done.front().image;
-  });
+  uniform.min_step_us = uniform.max_step_us =
+      std::clamp<int64_t>(static_cast<int64_t>(static_cast<double>(t1 - t0) * o.max_motion_px /
+                                               std::max(report.blur_px, 1e-9)),
+                          1, (t1 - t0) / 50);
+  const SimulatorStats stats = simulateAdaptive(
+      source, t0, t1, driver, uniform, [&](const EventStore& ev, const std::vector<Frame>& done) {
+        if (!o.drop_events) writer->write(ev.view());
+        if (!done.empty()) blurry = done.front().image;
+      });
   writer->close();
   report.events = o.drop_events ? 0 : stats.events;
   report.renders = source.renders();
@@ -143,7 +150,8 @@ SynthReport writeObservation(const Scene& scene, const SynthOptions& o, const st
   writeImageFile(tmp + "/blurry.png", blurry, 16);
 
   std::ofstream(tmp + "/exposure.txt") << t0 << ' ' << t1 << '\n';
-  std::ofstream(tmp + "/contrast.txt") << o.simulator.contrast_pos << ' ' << o.simulator.contrast_neg << '\n';
+  std::ofstream(tmp + "/contrast.txt")
+      << o.simulator.contrast_pos << ' ' << o.simulator.contrast_neg << '\n';
   writeCalibration(tmp + "/calib.txt", camera);
 
   // Ground truth: sharp frames, poses, knots, depth at mid-exposure.
@@ -160,23 +168,29 @@ SynthReport writeObservation(const Scene& scene, const SynthOptions& o, const st
     writeImageFile(tmp + "/gt/" + std::to_string(t) + ".png", sharp_at(t), 16);
   }
   const int64_t mid = t0 + (t1 - t0) / 2;
-  if (sharp % 2 == 0) writeImageFile(tmp + "/gt/" + std::to_string(mid) + ".png", sharp_at(mid), 16);
+  if (sharp % 2 == 0)
+    writeImageFile(tmp + "/gt/" + std::to_string(mid) + ".png", sharp_at(mid), 16);
   std::vector<int64_t> times;
-  for (int k = 0; k < std::max(2, o.poses); ++k) times.push_back(t0 + (t1 - t0) * k / (std::max(2, o.poses) - 1));
+  for (int k = 0; k < std::max(2, o.poses); ++k)
+    times.push_back(t0 + (t1 - t0) * k / (std::max(2, o.poses) - 1));
   writeTum(tmp + "/gt/poses.txt", sampleTrajectory(traj, times));
   std::vector<StampedPose> knots;
-  for (size_t k = 0; k < traj.knots().size(); ++k) knots.push_back({static_cast<int64_t>(k), traj.knots()[k]});
+  for (size_t k = 0; k < traj.knots().size(); ++k)
+    knots.push_back({static_cast<int64_t>(k), traj.knots()[k]});
   writeTum(tmp + "/gt/knots.txt", knots);
   cv::Mat depth;
   RenderOptions single;
   single.supersample = 1;
   render(scene, camera, o.width, o.height, traj.poseAt(mid), single, &depth);
-  writeNpy(tmp + "/gt/depth.npy", depth.ptr<float>(), {static_cast<size_t>(o.height), static_cast<size_t>(o.width)});
+  writeNpy(tmp + "/gt/depth.npy", depth.ptr<float>(),
+           {static_cast<size_t>(o.height), static_cast<size_t>(o.width)});
   std::ostringstream info;
-  info << "blur_px " << report.blur_px << "\nevents " << report.events << "\nrenders " << report.renders
-       << "\nmax_fraction_over_c " << report.max_fraction_over_c << "\ngain " << o.gain
-       << "\ncontrast " << o.simulator.contrast_pos << "\nsigma " << o.simulator.sigma << "\nshot_noise_hz "
-       << o.simulator.shot_noise_rate_hz << "\nleak_hz " << o.simulator.leak_rate_hz << "\ndrop_events " << o.drop_events << "\nseed " << o.shake.seed << "\nknots_kind cubic\n"
+  info << "blur_px " << report.blur_px << "\nevents " << report.events << "\nrenders "
+       << report.renders << "\nmax_fraction_over_c " << report.max_fraction_over_c << "\ngain "
+       << o.gain << "\ncontrast " << o.simulator.contrast_pos << "\nsigma " << o.simulator.sigma
+       << "\nshot_noise_hz " << o.simulator.shot_noise_rate_hz << "\nleak_hz "
+       << o.simulator.leak_rate_hz << "\ndrop_events " << o.drop_events << "\nseed " << o.shake.seed
+       << "\nknots_kind cubic\n"
        << "knot_times " << t0 << ' ' << t1 << "\n";
   std::ofstream(tmp + "/gt/info.txt") << info.str();
   out.commit();

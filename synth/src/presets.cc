@@ -1,6 +1,5 @@
 #include <cmath>
 #include <filesystem>
-
 #include <opencv2/core/persistence.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -15,8 +14,9 @@ namespace fs = std::filesystem;
 
 namespace {
 
-std::shared_ptr<const Texture> texture(const std::string& kind, double scale, uint64_t seed, const SceneOptions& o,
-                                       double mean = 0.45, double contrast = 0.7) {
+std::shared_ptr<const Texture> texture(const std::string& kind, double scale, uint64_t seed,
+                                       const SceneOptions& o, double mean = 0.45,
+                                       double contrast = 0.7) {
   TextureSpec spec;
   spec.kind = kind;
   spec.scale = scale;
@@ -27,15 +27,17 @@ std::shared_ptr<const Texture> texture(const std::string& kind, double scale, ui
   return std::make_shared<Texture>(makeTexture(spec));
 }
 
-Rectangle plane(const Vector3& center, double width, double height, std::shared_ptr<const Texture> tex,
-                const Vector3& right = Vector3::UnitX(), const Vector3& down = Vector3::UnitY()) {
+Rectangle plane(const Vector3& center, double width, double height,
+                std::shared_ptr<const Texture> tex, const Vector3& right = Vector3::UnitX(),
+                const Vector3& down = Vector3::UnitY()) {
   return Rectangle{center, right.normalized(), down.normalized(), width, height, std::move(tex)};
 }
 
 // A slanted ground plane below the camera: y = +1.2 m at the camera, rising away.
 Rectangle ground(const SceneOptions& o, uint64_t seed) {
   const Vector3 along = Vector3(0, -0.25, 1).normalized();
-  return plane(Vector3(0, 1.2 - 0.25 * 5, 5), 10, 10, texture("noise", 0.01, seed, o, 0.4, 0.6), Vector3::UnitX(), along);
+  return plane(Vector3(0, 1.2 - 0.25 * 5, 5), 10, 10, texture("noise", 0.01, seed, o, 0.4, 0.6),
+               Vector3::UnitX(), along);
 }
 
 HeightField proceduralHeightField(const SceneOptions& o) {
@@ -52,17 +54,18 @@ HeightField proceduralHeightField(const SceneOptions& o) {
   for (int y = 0; y < h; ++y) {
     for (int x = 0; x < w; ++x) {
       const double u = (x - w / 2.0) / w, v = (y - h / 2.0) / h;
-      hf.depth.at<float>(y, x) = static_cast<float>(3.0 - 1.2 * std::exp(-((u + 0.15) * (u + 0.15) + v * v) / 0.02) -
-                                                    0.6 * std::exp(-((u - 0.25) * (u - 0.25) + (v + 0.1) * (v + 0.1)) / 0.01) +
-                                                    0.8 * v);
+      hf.depth.at<float>(y, x) = static_cast<float>(
+          3.0 - 1.2 * std::exp(-((u + 0.15) * (u + 0.15) + v * v) / 0.02) -
+          0.6 * std::exp(-((u - 0.25) * (u - 0.25) + (v + 0.1) * (v + 0.1)) / 0.01) + 0.8 * v);
     }
   }
   hf.intrinsics = defaultCamera(w, h);
   return hf;
 }
 
-HeightField heightFieldFromFiles(const std::string& image, const std::string& depth_path, double scale, bool disparity,
-                                 double baseline, std::optional<Calibration> k, bool colour) {
+HeightField heightFieldFromFiles(const std::string& image, const std::string& depth_path,
+                                 double scale, bool disparity, double baseline,
+                                 std::optional<Calibration> k, bool colour) {
   HeightField hf;
   hf.image = readImageFile(image).image;
   if (!colour && hf.image.channels() == 3) cv::cvtColor(hf.image, hf.image, cv::COLOR_BGR2GRAY);
@@ -100,7 +103,9 @@ Calibration defaultCamera(int width, int height) {
   return Calibration{0.9 * width, 0.9 * width, (width - 1) / 2.0, (height - 1) / 2.0, {}};
 }
 
-std::vector<std::string> presetNames() { return {"planes", "box", "rgbd", "ground", "text", "plain"}; }
+std::vector<std::string> presetNames() {
+  return {"planes", "box", "rgbd", "ground", "text", "plain"};
+}
 
 Scene makePreset(const std::string& name, const SceneOptions& o) {
   Scene s;
@@ -108,30 +113,41 @@ Scene makePreset(const std::string& name, const SceneOptions& o) {
   s.background = 0.1;
   if (name == "planes") {
     s.rectangles.push_back(plane(Vector3(0, 0, 6), 14, 11, texture("noise", 0.01, 1, o)));
-    s.rectangles.push_back(plane(Vector3(-0.9, -0.3, 3.5), 2.4, 2.0, texture("text", 0.1, 2, o, 0.5, 0.8)));
-    s.rectangles.push_back(plane(Vector3(0.8, 0.4, 2.2), 1.0, 1.4, texture("checker", 0.125, 3, o)));
-    s.rectangles.push_back(plane(Vector3(0.1, -0.45, 1.6), 0.5, 0.35, texture("stripes", 0.1, 4, o), Vector3(1, 0.3, 0), Vector3(-0.3, 1, 0)));
+    s.rectangles.push_back(
+        plane(Vector3(-0.9, -0.3, 3.5), 2.4, 2.0, texture("text", 0.1, 2, o, 0.5, 0.8)));
+    s.rectangles.push_back(
+        plane(Vector3(0.8, 0.4, 2.2), 1.0, 1.4, texture("checker", 0.125, 3, o)));
+    s.rectangles.push_back(plane(Vector3(0.1, -0.45, 1.6), 0.5, 0.35, texture("stripes", 0.1, 4, o),
+                                 Vector3(1, 0.3, 0), Vector3(-0.3, 1, 0)));
   } else if (name == "box") {
     s.rectangles.push_back(plane(Vector3(0, 0, 5), 12, 9, texture("noise", 0.015, 1, o)));
     s.rectangles.push_back(ground(o, 2));
-    s.addBox(Vector3(0.2, 0.1, 2.6), Vector3(0.9, 0.9, 0.9), Vector3(0.25, 0.6, 0.1), texture("checker", 0.1, 3, o, 0.5, 0.8));
-    s.addBox(Vector3(-0.9, 0.4, 3.2), Vector3(0.5, 0.8, 0.5), Vector3(0, -0.4, 0), texture("noise", 0.05, 4, o));
+    s.addBox(Vector3(0.2, 0.1, 2.6), Vector3(0.9, 0.9, 0.9), Vector3(0.25, 0.6, 0.1),
+             texture("checker", 0.1, 3, o, 0.5, 0.8));
+    s.addBox(Vector3(-0.9, 0.4, 3.2), Vector3(0.5, 0.8, 0.5), Vector3(0, -0.4, 0),
+             texture("noise", 0.05, 4, o));
   } else if (name == "rgbd") {
-    if (o.rgbd_image.empty() != o.rgbd_depth.empty()) throw Error("the rgbd preset needs both --image and --depth, or neither");
+    if (o.rgbd_image.empty() != o.rgbd_depth.empty())
+      throw Error("the rgbd preset needs both --image and --depth, or neither");
     s.height_field = o.rgbd_image.empty()
                          ? proceduralHeightField(o)
-                         : heightFieldFromFiles(o.rgbd_image, o.rgbd_depth, o.rgbd_depth_scale, false, 0, std::nullopt, o.colour);
+                         : heightFieldFromFiles(o.rgbd_image, o.rgbd_depth, o.rgbd_depth_scale,
+                                                false, 0, std::nullopt, o.colour);
     finishHeightField(*s.height_field);
   } else if (name == "ground") {
     s.rectangles.push_back(plane(Vector3(0, -1, 7), 16, 8, texture("stripes", 0.05, 1, o)));
     s.rectangles.push_back(ground(o, 5));
   } else if (name == "text") {
-    s.rectangles.push_back(plane(Vector3(0, 0, 4.5), 10, 8, texture("noise", 0.02, 1, o, 0.35, 0.5)));
-    s.rectangles.push_back(plane(Vector3(0, 0, 2.0), 2.0, 1.5, texture("text", 0.1, 6, o, 0.5, 0.9)));
+    s.rectangles.push_back(
+        plane(Vector3(0, 0, 4.5), 10, 8, texture("noise", 0.02, 1, o, 0.35, 0.5)));
+    s.rectangles.push_back(
+        plane(Vector3(0, 0, 2.0), 2.0, 1.5, texture("text", 0.1, 6, o, 0.5, 0.9)));
   } else if (name == "plain") {
     s.rectangles.push_back(plane(Vector3(0, 0, 5), 14, 11, texture("noise", 0.02, 1, o, 0.5, 0.0)));
-    s.rectangles.push_back(plane(Vector3(-0.7, -0.2, 3.0), 0.8, 0.6, texture("checker", 0.125, 2, o, 0.5, 0.8)));
-    s.rectangles.push_back(plane(Vector3(0.9, 0.5, 2.5), 0.7, 0.5, texture("text", 0.1, 3, o, 0.5, 0.9)));
+    s.rectangles.push_back(
+        plane(Vector3(-0.7, -0.2, 3.0), 0.8, 0.6, texture("checker", 0.125, 2, o, 0.5, 0.8)));
+    s.rectangles.push_back(
+        plane(Vector3(0.9, 0.5, 2.5), 0.7, 0.5, texture("text", 0.1, 3, o, 0.5, 0.9)));
   } else {
     std::string known;
     for (const std::string& p : presetNames()) known += (known.empty() ? "" : ", ") + p;
@@ -155,7 +171,8 @@ Scene loadScene(const std::string& path, const SceneOptions& options) {
   const auto vec3 = [&](const cv::FileNode& n, const char* key, Vector3 fallback) {
     const cv::FileNode v = n[key];
     if (v.empty()) return fallback;
-    if (!v.isSeq() || v.size() != 3) throwInFile(path, std::string("'") + key + "' must be a list of 3 numbers");
+    if (!v.isSeq() || v.size() != 3)
+      throwInFile(path, std::string("'") + key + "' must be a list of 3 numbers");
     return Vector3(static_cast<double>(v[0]), static_cast<double>(v[1]), static_cast<double>(v[2]));
   };
   const auto num = [&](const cv::FileNode& n, const char* key, double fallback) {
@@ -164,7 +181,9 @@ Scene loadScene(const std::string& path, const SceneOptions& options) {
   const auto str = [&](const cv::FileNode& n, const char* key, const std::string& fallback) {
     return n[key].empty() ? fallback : static_cast<std::string>(n[key]);
   };
-  const auto resolve = [&](const std::string& p) { return fs::path(p).is_absolute() ? p : (fs::path(path).parent_path() / p).string(); };
+  const auto resolve = [&](const std::string& p) {
+    return fs::path(p).is_absolute() ? p : (fs::path(path).parent_path() / p).string();
+  };
   const cv::FileNode objects = fsx["objects"];
   if (!objects.isSeq() || objects.size() == 0) throwInFile(path, "no 'objects' list");
   int index = 0;
@@ -188,19 +207,25 @@ Scene loadScene(const std::string& path, const SceneOptions& options) {
     try {
       if (type == "plane") {
         const cv::FileNode sz = obj["size"];
-        if (!sz.isSeq() || sz.size() != 2) throwInFile(path, where + ": plane 'size' must be [width, height]");
-        s.rectangles.push_back(plane(vec3(obj, "center", Vector3(0, 0, 5)), static_cast<double>(sz[0]), static_cast<double>(sz[1]),
-                                     std::make_shared<Texture>(makeTexture(spec)), vec3(obj, "right", Vector3::UnitX()),
-                                     vec3(obj, "down", Vector3::UnitY())));
+        if (!sz.isSeq() || sz.size() != 2)
+          throwInFile(path, where + ": plane 'size' must be [width, height]");
+        s.rectangles.push_back(
+            plane(vec3(obj, "center", Vector3(0, 0, 5)), static_cast<double>(sz[0]),
+                  static_cast<double>(sz[1]), std::make_shared<Texture>(makeTexture(spec)),
+                  vec3(obj, "right", Vector3::UnitX()), vec3(obj, "down", Vector3::UnitY())));
       } else if (type == "box") {
-        s.addBox(vec3(obj, "center", Vector3(0, 0, 3)), vec3(obj, "size", Vector3(1, 1, 1)), vec3(obj, "rotation", Vector3::Zero()),
+        s.addBox(vec3(obj, "center", Vector3(0, 0, 3)), vec3(obj, "size", Vector3(1, 1, 1)),
+                 vec3(obj, "rotation", Vector3::Zero()),
                  std::make_shared<Texture>(makeTexture(spec)));
       } else if (type == "rgbd") {
         std::optional<Calibration> k;
-        if (!obj["fx"].empty()) k = Calibration{num(obj, "fx", 0), num(obj, "fy", 0), num(obj, "cx", 0), num(obj, "cy", 0), {}};
-        s.height_field = heightFieldFromFiles(resolve(str(obj, "image", "")), resolve(str(obj, "depth", "")),
-                                              num(obj, "depth_scale", 0.001), num(obj, "disparity", 0) != 0,
-                                              num(obj, "baseline", 0.1), k, s.colour);
+        if (!obj["fx"].empty())
+          k = Calibration{
+              num(obj, "fx", 0), num(obj, "fy", 0), num(obj, "cx", 0), num(obj, "cy", 0), {}};
+        s.height_field =
+            heightFieldFromFiles(resolve(str(obj, "image", "")), resolve(str(obj, "depth", "")),
+                                 num(obj, "depth_scale", 0.001), num(obj, "disparity", 0) != 0,
+                                 num(obj, "baseline", 0.1), k, s.colour);
         finishHeightField(*s.height_field);
       } else {
         throwInFile(path, where + ": unknown type '" + type + "' (known: plane, box, rgbd)");
@@ -261,7 +286,8 @@ std::vector<SuiteEntry> suiteEntries(const std::string& suite) {
     }
   }
   if (suite == "hard" || suite == "all") {
-    const auto hard = [&](const std::string& name, const std::string& scene, double blur, const std::string& what) -> SuiteEntry& {
+    const auto hard = [&](const std::string& name, const std::string& scene, double blur,
+                          const std::string& what) -> SuiteEntry& {
       SuiteEntry e;
       e.name = "hard_" + name;
       e.group = "hard";
@@ -276,7 +302,9 @@ std::vector<SuiteEntry> suiteEntries(const std::string& suite) {
     hard("textureless", "plain", 40, "texture-less: a uniform wall with two small cards");
     hard("saturated", "box", 40, "saturated highlights: radiance x3, frames clip at 1").gain = 3.0;
     hard("dark", "planes", 40, "very dark: radiance x0.02").gain = 0.02;
-    SuiteEntry& noisy = hard("noisy", "planes", 40, "noisy events: threshold mismatch 0.04, shot noise 5 Hz, leak 1 Hz per pixel");
+    SuiteEntry& noisy =
+        hard("noisy", "planes", 40,
+             "noisy events: threshold mismatch 0.04, shot noise 5 Hz, leak 1 Hz per pixel");
     noisy.sigma = 0.04;
     noisy.shot_noise_hz = 5;
     noisy.leak_hz = 1;
@@ -284,7 +312,8 @@ std::vector<SuiteEntry> suiteEntries(const std::string& suite) {
     hard("dense", "planes", 40, "dense events: C = 0.08").contrast = 0.08;
     hard("noevents", "planes", 40, "no events in the exposure").drop_events = true;
   }
-  if (entries.empty()) throw Error("unknown suite '" + suite + "' (known: standard, noisy, hard, all)");
+  if (entries.empty())
+    throw Error("unknown suite '" + suite + "' (known: standard, noisy, hard, all)");
   return entries;
 }
 

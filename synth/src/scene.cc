@@ -3,9 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <random>
-
 #include <opencv2/imgproc.hpp>
+#include <random>
 
 #include "evkit/base/error.h"
 #include "evkit/events/image_io.h"
@@ -45,7 +44,9 @@ cv::Mat pattern(const TextureSpec& spec, std::mt19937_64& rng) {
   if (spec.kind == "stripes") {
     const double c = std::cos(spec.angle), s = std::sin(spec.angle), period = spec.scale * res;
     for (int y = 0; y < res; ++y) {
-      for (int x = 0; x < res; ++x) out.at<float>(y, x) = static_cast<float>(0.5 + 0.5 * std::sin(2 * M_PI * (c * x + s * y) / period));
+      for (int x = 0; x < res; ++x)
+        out.at<float>(y, x) =
+            static_cast<float>(0.5 + 0.5 * std::sin(2 * M_PI * (c * x + s * y) / period));
     }
     return out;
   }
@@ -64,17 +65,20 @@ cv::Mat pattern(const TextureSpec& spec, std::mt19937_64& rng) {
     int line = 0;
     for (int y = static_cast<int>(40 * size); y < res; y += static_cast<int>(48 * size), ++line) {
       const std::string words = spec.text + " " + std::to_string(line * 7 + 3) + " " + spec.text;
-      cv::putText(canvas, words, cv::Point(static_cast<int>(8 * size + (line % 3) * 10 * size), y), cv::FONT_HERSHEY_SIMPLEX,
-                  size * 0.9, cv::Scalar(255), std::max(1, static_cast<int>(2 * size)), cv::LINE_AA);
+      cv::putText(canvas, words, cv::Point(static_cast<int>(8 * size + (line % 3) * 10 * size), y),
+                  cv::FONT_HERSHEY_SIMPLEX, size * 0.9, cv::Scalar(255),
+                  std::max(1, static_cast<int>(2 * size)), cv::LINE_AA);
     }
     canvas.convertTo(out, CV_32F, 1.0 / 255.0);
     return out;
   }
-  throw Error("unknown texture kind '" + spec.kind + "' (known: noise, stripes, checker, text, image)");
+  throw Error("unknown texture kind '" + spec.kind +
+              "' (known: noise, stripes, checker, text, image)");
 }
 
 // Ray-rectangle intersection: distance along the (unit-free) direction, texture coordinates.
-inline double intersect(const Rectangle& r, const Vector3& o, const Vector3& d, double& s, double& t) {
+inline double intersect(const Rectangle& r, const Vector3& o, const Vector3& d, double& s,
+                        double& t) {
   const Vector3& n = r.normal;
   const double denom = n.dot(d);
   if (std::abs(denom) < 1e-12) return kNoHit;
@@ -101,7 +105,8 @@ cv::Vec3f bilinear(const cv::Mat& img, double x, double y) {
     }
     return img.at<cv::Vec3f>(yy, xx);
   };
-  return (at(y0, x0) * (1 - fx) + at(y0, x1) * fx) * (1 - fy) + (at(y1, x0) * (1 - fx) + at(y1, x1) * fx) * fy;
+  return (at(y0, x0) * (1 - fx) + at(y0, x1) * fx) * (1 - fy) +
+         (at(y1, x0) * (1 - fx) + at(y1, x1) * fx) * fy;
 }
 
 // Bilinear sample of a single-channel float image at pixel coordinates (clamped).
@@ -119,7 +124,8 @@ inline float bilinearScalar(const cv::Mat& img, double x, double y) {
 
 // First hit of the height field along o + lambda d: march in steps of at most half a source pixel,
 // then refine by regula falsi. Returns the hit's z (source depth) or kNoHit.
-double marchHeightField(const HeightField& hf, const Vector3& o, const Vector3& d, cv::Vec3f& colour) {
+double marchHeightField(const HeightField& hf, const Vector3& o, const Vector3& d,
+                        cv::Vec3f& colour) {
   if (d.z() <= 0) return kNoHit;
   const Calibration& k = hf.intrinsics;
   const double l0 = std::max(1e-6, (hf.z_min - o.z()) / d.z()), l1 = (hf.z_max - o.z()) / d.z();
@@ -175,7 +181,8 @@ double marchHeightField(const HeightField& hf, const Vector3& o, const Vector3& 
 // The nearest hit along o + lambda d (lambda = depth along z when d = R (.., .., 1)); its colour.
 double nearest(const Scene& scene, const Vector3& o, const Vector3& d, cv::Vec3f& colour) {
   double best = kNoHit;
-  colour = cv::Vec3f(static_cast<float>(scene.background), static_cast<float>(scene.background), static_cast<float>(scene.background));
+  colour = cv::Vec3f(static_cast<float>(scene.background), static_cast<float>(scene.background),
+                     static_cast<float>(scene.background));
   for (const Rectangle& r : scene.rectangles) {
     double s, t;
     const double lambda = intersect(r, o, d, s, t);
@@ -206,18 +213,23 @@ double firstHit(const Scene& scene, const Vector3& o, const Vector3& d) {
 
 }  // namespace
 
-cv::Vec3f Texture::sample(double s, double t) const { return bilinear(image, s * image.cols - 0.5, t * image.rows - 0.5); }
+cv::Vec3f Texture::sample(double s, double t) const {
+  return bilinear(image, s * image.cols - 0.5, t * image.rows - 0.5);
+}
 
 Texture makeTexture(const TextureSpec& spec) {
   Texture tex;
   if (spec.kind == "image") {
     Frame f = readImageFile(spec.path);
     tex.image = f.image;
-    if (!spec.colour && tex.image.channels() == 3) cv::cvtColor(tex.image, tex.image, cv::COLOR_BGR2GRAY);
+    if (!spec.colour && tex.image.channels() == 3)
+      cv::cvtColor(tex.image, tex.image, cv::COLOR_BGR2GRAY);
     return tex;
   }
   std::mt19937_64 rng(spec.seed * 0x9e3779b97f4a7c15ULL + 17);
-  const auto shaped = [&](const cv::Mat& unit) { return unit * spec.contrast + (spec.mean - 0.5 * spec.contrast); };
+  const auto shaped = [&](const cv::Mat& unit) {
+    return unit * spec.contrast + (spec.mean - 0.5 * spec.contrast);
+  };
   if (!spec.colour) {
     tex.image = shaped(pattern(spec, rng));
   } else {
@@ -241,13 +253,14 @@ void Scene::addBox(const Vector3& center, const Vector3& size, const Vector3& ro
   for (int axis = 0; axis < 3; ++axis) {
     for (int sign : {-1, 1}) {
       const int a = (axis + 1) % 3, b = (axis + 2) % 3;
-      rectangles.emplace_back(center + R.col(axis) * (sign * 0.5 * size[axis]), R.col(a), R.col(b), size[a], size[b], texture);
+      rectangles.emplace_back(center + R.col(axis) * (sign * 0.5 * size[axis]), R.col(a), R.col(b),
+                              size[a], size[b], texture);
     }
   }
 }
 
-cv::Mat render(const Scene& scene, const Calibration& camera, int width, int height, const SE3& T_world_cam,
-               const RenderOptions& options, cv::Mat* depth) {
+cv::Mat render(const Scene& scene, const Calibration& camera, int width, int height,
+               const SE3& T_world_cam, const RenderOptions& options, cv::Mat* depth) {
   const int ss = std::max(1, options.supersample);
   const int channels = scene.colour ? 3 : 1;
   cv::Mat out(height, width, CV_MAKETYPE(CV_32F, channels));
@@ -269,9 +282,12 @@ cv::Mat render(const Scene& scene, const Calibration& camera, int width, int hei
         }
       }
       acc /= static_cast<float>(ss * ss);
-      if (depth) depth->at<float>(y, x) = static_cast<float>(firstHit(scene, o, R * Vector3((x - camera.cx) / camera.fx, (y - camera.cy) / camera.fy, 1.0)));
+      if (depth)
+        depth->at<float>(y, x) = static_cast<float>(firstHit(
+            scene, o, R * Vector3((x - camera.cx) / camera.fx, (y - camera.cy) / camera.fy, 1.0)));
       if (channels == 1) {
-        out.at<float>(y, x) = 0.114f * acc[0] + 0.587f * acc[1] + 0.299f * acc[2];  // BT.601 (equal channels: identity)
+        out.at<float>(y, x) = 0.114f * acc[0] + 0.587f * acc[1] +
+                              0.299f * acc[2];  // BT.601 (equal channels: identity)
       } else {
         out.at<cv::Vec3f>(y, x) = acc;
       }

@@ -4,9 +4,8 @@
 
 #include <fstream>
 #include <map>
-#include <sstream>
-
 #include <opencv2/imgcodecs.hpp>
+#include <sstream>
 
 #include "evkit/events/image_io.h"
 #include "evkit/events/io.h"
@@ -21,7 +20,9 @@ using test::runEvkit;
 using test::RunResult;
 using test::ScratchDir;
 
-int lineCount(const std::string& s) { return static_cast<int>(std::count(s.begin(), s.end(), '\n')); }
+int lineCount(const std::string& s) {
+  return static_cast<int>(std::count(s.begin(), s.end(), '\n'));
+}
 
 std::string makeRecording(const ScratchDir& dir, const std::string& name, size_t count = 20000) {
   RandomEventOptions o;
@@ -58,8 +59,10 @@ TEST(Cli, InfoReportsCountsSpanAndRate) {
   EXPECT_NE(r.out.find("format:      text (rpg-text layout)"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("sensor:      346 x 260"), std::string::npos);
   const int64_t on = rec.events.countOn();
-  const std::string on_text = std::to_string(on / 1000) + "," + std::to_string(on % 1000 + 1000).substr(1);
-  EXPECT_NE(r.out.find("events:      20,000 (ON " + on_text + ", OFF "), std::string::npos) << r.out;
+  const std::string on_text =
+      std::to_string(on / 1000) + "," + std::to_string(on % 1000 + 1000).substr(1);
+  EXPECT_NE(r.out.find("events:      20,000 (ON " + on_text + ", OFF "), std::string::npos)
+      << r.out;
   EXPECT_NE(r.out.find("first:       1605537493718345 us"), std::string::npos) << r.out;
 }
 
@@ -72,7 +75,8 @@ TEST(Cli, ConvertRoundTripAndRelativeWindow) {
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_EQ(test::readText(txt), test::readText(dir / "c.txt"));
 
-  r = runEvkit("convert " + (dir / "b.h5") + " " + (dir / "w.txt") + " --start +1ms --end +5ms", dir);
+  r = runEvkit("convert " + (dir / "b.h5") + " " + (dir / "w.txt") + " --start +1ms --end +5ms",
+               dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const Recording all = readRecording(txt), part = readRecording(dir / "w.txt");
   const int64_t t0 = all.events.t.front();
@@ -91,7 +95,8 @@ TEST(Cli, ConvertRoundTripAndRelativeWindow) {
 TEST(Cli, AccumulateWritesPngNpyAndWindowTable) {
   ScratchDir dir;
   const std::string h5 = makeRecording(dir, "a.h5");
-  RunResult r = runEvkit("accumulate " + h5 + " --repr voxel --bins 3 --window 5ms --out " + (dir / "vox"), dir);
+  RunResult r = runEvkit(
+      "accumulate " + h5 + " --repr voxel --bins 3 --window 5ms --out " + (dir / "vox"), dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const std::string csv = test::readText(dir / "vox/windows.csv");
   const int windows = lineCount(csv) - 1;
@@ -110,7 +115,8 @@ TEST(Cli, AccumulateWritesPngNpyAndWindowTable) {
   EXPECT_DOUBLE_EQ(total, 2000.0);
 
   for (const char* repr : {"frame", "normalized", "timesurface"}) {
-    r = runEvkit("accumulate " + h5 + " --repr " + repr + " --window 20ms --out " + (dir / repr), dir);
+    r = runEvkit("accumulate " + h5 + " --repr " + repr + " --window 20ms --out " + (dir / repr),
+                 dir);
     EXPECT_EQ(r.exit_code, 0) << repr << ": " << r.err;
     EXPECT_TRUE(test::fs::exists(dir / (std::string(repr) + "/000000.npy"))) << repr;
   }
@@ -126,10 +132,13 @@ TEST(Cli, BadInputGivesOneLineNonZeroExitAndNoPartialOutput) {
     const RunResult r = runEvkit("convert " + (dir / "bad.txt") + " " + (dir / out), dir);
     EXPECT_EQ(r.exit_code, 1);
     EXPECT_EQ(lineCount(r.err), 1) << r.err;
-    EXPECT_NE(r.err.find("bad.txt: line 300002: expected 't x y p'; cannot read polarity"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("bad.txt: line 300002: expected 't x y p'; cannot read polarity"),
+              std::string::npos)
+        << r.err;
     EXPECT_FALSE(test::fs::exists(dir / out));
   }
-  const RunResult acc = runEvkit("accumulate " + (dir / "bad.txt") + " --out " + (dir / "acc"), dir);
+  const RunResult acc =
+      runEvkit("accumulate " + (dir / "bad.txt") + " --out " + (dir / "acc"), dir);
   EXPECT_EQ(acc.exit_code, 1);
   EXPECT_FALSE(test::fs::exists(dir / "acc"));
   EXPECT_EQ(test::countTemporaries(dir.path()), 0);
@@ -142,10 +151,11 @@ TEST(Cli, BadInputGivesOneLineNonZeroExitAndNoPartialOutput) {
 TEST(Cli, BadOptionsExitWithTwo) {
   ScratchDir dir;
   const std::string txt = makeRecording(dir, "a.txt", 100);
-  for (const std::string& args : std::vector<std::string>{"convert " + txt, "convert " + txt + " b.h5 --compression zip",
-                                 "accumulate " + txt + " --out x --repr nope",
-                                 "accumulate " + txt + " --out x --window 5 parsecs", "info " + txt + " --format xyz",
-                                 "accumulate " + txt + " --out x --window 1ms --count 5", std::string("info")}) {
+  for (const std::string& args : std::vector<std::string>{
+           "convert " + txt, "convert " + txt + " b.h5 --compression zip",
+           "accumulate " + txt + " --out x --repr nope",
+           "accumulate " + txt + " --out x --window 5 parsecs", "info " + txt + " --format xyz",
+           "accumulate " + txt + " --out x --window 1ms --count 5", std::string("info")}) {
     const RunResult r = runEvkit(args, dir);
     EXPECT_EQ(r.exit_code, 2) << args << ": " << r.err;
     EXPECT_EQ(lineCount(r.err), 1) << args << ": " << r.err;
@@ -169,9 +179,10 @@ TEST(Cli, SimulateWritesEventsAndBlurryFrames) {
   ScratchDir dir;
   writeMovingBar(dir);
   for (const std::string out : {"sim.h5", "sim.aedat4", "sim.txt"}) {
-    const RunResult r = runEvkit("simulate " + dir.path().string() + " --out " + (dir / out) +
-                                     " --exposure-every 5 --duty 0.6 --sigma 0.02 --refractory 50us",
-                                 dir);
+    const RunResult r =
+        runEvkit("simulate " + dir.path().string() + " --out " + (dir / out) +
+                     " --exposure-every 5 --duty 0.6 --sigma 0.02 --refractory 50us",
+                 dir);
     ASSERT_EQ(r.exit_code, 0) << r.err;
     EXPECT_NE(r.err.find("simulated 20 frames"), std::string::npos) << r.err;
     const Recording rec = readRecording(dir / out);
@@ -183,10 +194,13 @@ TEST(Cli, SimulateWritesEventsAndBlurryFrames) {
     EXPECT_EQ(rec.frames[1].exposure_end_us, 1605537493008000);
   }
   // The bar's edges jump from 0.1 to 0.8 between frames: far more than C for 5% of the pixels.
-  const RunResult warn = runEvkit("simulate " + (dir / "timestamps.txt") + " --out " + (dir / "x.h5"), dir);
+  const RunResult warn =
+      runEvkit("simulate " + (dir / "timestamps.txt") + " --out " + (dir / "x.h5"), dir);
   ASSERT_EQ(warn.exit_code, 0) << warn.err;
-  EXPECT_NE(warn.err.find("warning: 19 of 19 frame intervals change more than 1% of the pixels by more than C (worst: 5%)"),
-            std::string::npos) << warn.err;
+  EXPECT_NE(warn.err.find("warning: 19 of 19 frame intervals change more than 1% of the pixels by "
+                          "more than C (worst: 5%)"),
+            std::string::npos)
+      << warn.err;
 }
 
 TEST(Cli, SimulateReportsMissingFramesAndBadOptions) {
@@ -197,18 +211,24 @@ TEST(Cli, SimulateReportsMissingFramesAndBadOptions) {
   EXPECT_EQ(lineCount(r.err), 1) << r.err;
   EXPECT_NE(r.err.find("frame19.png: no such image file"), std::string::npos) << r.err;
   EXPECT_FALSE(test::fs::exists(dir / "o.h5"));
-  r = runEvkit("simulate " + dir.path().string() + " --out " + (dir / "o.h5") + " --contrast -1", dir);
+  r = runEvkit("simulate " + dir.path().string() + " --out " + (dir / "o.h5") + " --contrast -1",
+               dir);
   EXPECT_EQ(r.exit_code, 2) << r.err;
-  r = runEvkit("simulate " + dir.path().string() + " --out " + (dir / "o.h5") + " --exposure 5", dir);
+  r = runEvkit("simulate " + dir.path().string() + " --out " + (dir / "o.h5") + " --exposure 5",
+               dir);
   EXPECT_EQ(r.exit_code, 2) << r.err;
 }
 
 TEST(Cli, SynthWritesAnObservationFolder) {
   ScratchDir dir;
-  RunResult r = runEvkit("synth --preset box --size 64x48 --blur-px 6 --exposure-us 20000 --seed 3 --out " + (dir / "obs"), dir);
+  RunResult r =
+      runEvkit("synth --preset box --size 64x48 --blur-px 6 --exposure-us 20000 --seed 3 --out " +
+                   (dir / "obs"),
+               dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.err.find("blur   6.0 px"), std::string::npos) << r.err;
-  for (const char* f : {"blurry.png", "events.h5", "calib.txt", "exposure.txt", "contrast.txt", "gt/poses.txt", "gt/depth.npy"}) {
+  for (const char* f : {"blurry.png", "events.h5", "calib.txt", "exposure.txt", "contrast.txt",
+                        "gt/poses.txt", "gt/depth.npy"}) {
     EXPECT_TRUE(test::fs::exists(dir / (std::string("obs/") + f))) << f;
   }
   EXPECT_EQ(test::readText(dir / "obs/contrast.txt"), "0.2 0.2\n");
@@ -224,11 +244,14 @@ TEST(Cli, SynthWritesAnObservationFolder) {
 
 TEST(Cli, DeblurCompareAndMetricsOnASyntheticObservation) {
   ScratchDir dir;
-  RunResult r = runEvkit("synth --preset text --size 80x60 --blur-px 8 --exposure-us 20000 --out " + (dir / "obs"), dir);
+  RunResult r = runEvkit(
+      "synth --preset text --size 80x60 --blur-px 8 --exposure-us 20000 --out " + (dir / "obs"),
+      dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   r = runEvkit("deblur " + (dir / "obs") + " --method edi --frames 3 --out " + (dir / "edi"), dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
-  EXPECT_NE(r.err.find("edi: 3 frames"), std::string::npos) << r.err;  // start, middle, end (= gt times)
+  EXPECT_NE(r.err.find("edi: 3 frames"), std::string::npos)
+      << r.err;  // start, middle, end (= gt times)
   const std::string summary = test::readText(dir / "edi/summary.json");
   EXPECT_NE(summary.find("\"method\": \"edi\""), std::string::npos) << summary;
   EXPECT_NE(summary.find("\"psnr_mid\": "), std::string::npos);
@@ -240,29 +263,41 @@ TEST(Cli, DeblurCompareAndMetricsOnASyntheticObservation) {
   EXPECT_NE(r.out.find("blurry"), std::string::npos);
   EXPECT_NE(r.out.find("edi"), std::string::npos);
   EXPECT_TRUE(test::fs::exists(dir / "cmp/side_by_side.png"));
-  r = runEvkit("metrics " + (dir / "edi/1600000000010000.png") + " " + (dir / "obs/gt/1600000000010000.png"), dir);
+  r = runEvkit(
+      "metrics " + (dir / "edi/1600000000010000.png") + " " + (dir / "obs/gt/1600000000010000.png"),
+      dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("PSNR"), std::string::npos);
   EXPECT_NE(r.out.find("BRISQUE"), std::string::npos);
   // Mistakes: unknown method or setting (2), missing folder (1), times outside the exposure (2).
-  EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --method magic --out " + (dir / "x"), dir).exit_code, 2);
-  EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --set speed=11 --out " + (dir / "x"), dir).exit_code, 2);
+  EXPECT_EQ(
+      runEvkit("deblur " + (dir / "obs") + " --method magic --out " + (dir / "x"), dir).exit_code,
+      2);
+  EXPECT_EQ(
+      runEvkit("deblur " + (dir / "obs") + " --set speed=11 --out " + (dir / "x"), dir).exit_code,
+      2);
   EXPECT_EQ(runEvkit("deblur " + (dir / "nothing") + " --out " + (dir / "x"), dir).exit_code, 1);
-  EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --times 5 --out " + (dir / "x"), dir).exit_code, 2);
+  EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --times 5 --out " + (dir / "x"), dir).exit_code,
+            2);
   EXPECT_FALSE(test::fs::exists(dir / "x"));
 }
 
 TEST(Cli, DeblurWithBenerfWritesFramesTrajectoryDisparityCurveAndCheckpoint) {
   ScratchDir dir;
-  RunResult r = runEvkit("synth --preset planes --size 48x36 --blur-px 6 --exposure-us 20000 --out " + (dir / "obs"), dir);
+  RunResult r = runEvkit(
+      "synth --preset planes --size 48x36 --blur-px 6 --exposure-us 20000 --out " + (dir / "obs"),
+      dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
-  r = runEvkit("deblur " + (dir / "obs") + " --method benerf --set budget=fast --set iterations=30 --set rays=128 --set samples=8 " +
-                   "--set checkpoint=" + (dir / "ckpt") + " --frames 3 --out " + (dir / "nerf"),
-               dir);
+  r = runEvkit(
+      "deblur " + (dir / "obs") +
+          " --method benerf --set budget=fast --set iterations=30 --set rays=128 --set samples=8 " +
+          "--set checkpoint=" + (dir / "ckpt") + " --frames 3 --out " + (dir / "nerf"),
+      dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.err.find("benerf: 3 frames"), std::string::npos) << r.err;
-  for (const char* file : {"1600000000000000.png", "1600000000010000.png", "1600000000020000.png", "latent.avi", "trajectory.txt",
-                           "disparity.npy", "disparity.png", "summary.json"}) {
+  for (const char* file :
+       {"1600000000000000.png", "1600000000010000.png", "1600000000020000.png", "latent.avi",
+        "trajectory.txt", "disparity.npy", "disparity.png", "summary.json"}) {
     EXPECT_TRUE(test::fs::exists(dir / (std::string("nerf/") + file))) << file;
   }
   EXPECT_TRUE(test::fs::exists(dir / "ckpt"));
@@ -274,19 +309,40 @@ TEST(Cli, DeblurWithBenerfWritesFramesTrajectoryDisparityCurveAndCheckpoint) {
   EXPECT_NE(summary.find("\"final_event_term\": "), std::string::npos) << summary;
   EXPECT_NE(summary.find("\"blur_weight\": 1"), std::string::npos) << summary;  // not a dim frame
   // Resuming from the finished checkpoint trains no further and gives the same frames.
-  r = runEvkit("deblur " + (dir / "obs") + " --method benerf --set budget=fast --set iterations=30 --set rays=128 --set samples=8 " +
-                   "--set resume=" + (dir / "ckpt") + " --frames 3 --out " + (dir / "again"),
-               dir);
+  r = runEvkit(
+      "deblur " + (dir / "obs") +
+          " --method benerf --set budget=fast --set iterations=30 --set rays=128 --set samples=8 " +
+          "--set resume=" + (dir / "ckpt") + " --frames 3 --out " + (dir / "again"),
+      dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
-  EXPECT_EQ(test::readText(dir / "again/1600000000010000.png"), test::readText(dir / "nerf/1600000000010000.png"));
+  EXPECT_EQ(test::readText(dir / "again/1600000000010000.png"),
+            test::readText(dir / "nerf/1600000000010000.png"));
   // Mistakes: a bad budget or setting value is a usage error; a corrupt checkpoint one error line.
-  EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --method benerf --set budget=slow --out " + (dir / "x"), dir).exit_code, 2);
-  EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --method benerf --set alpha=2 --out " + (dir / "x"), dir).exit_code, 2);
-  EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --method benerf --set blur_rays=0 --out " + (dir / "x"), dir).exit_code, 2);
-  EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --method benerf --set event_rays=-1 --out " + (dir / "x"), dir).exit_code, 2);
+  EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --method benerf --set budget=slow --out " +
+                         (dir / "x"),
+                     dir)
+                .exit_code,
+            2);
+  EXPECT_EQ(
+      runEvkit("deblur " + (dir / "obs") + " --method benerf --set alpha=2 --out " + (dir / "x"),
+               dir)
+          .exit_code,
+      2);
+  EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --method benerf --set blur_rays=0 --out " +
+                         (dir / "x"),
+                     dir)
+                .exit_code,
+            2);
+  EXPECT_EQ(runEvkit("deblur " + (dir / "obs") + " --method benerf --set event_rays=-1 --out " +
+                         (dir / "x"),
+                     dir)
+                .exit_code,
+            2);
   // A setting out of range: exit code 2 and a message naming it.
   const auto expectUsageError = [&](const std::string& setting, const std::string& message) {
-    const auto u = runEvkit("deblur " + (dir / "obs") + " --method benerf --set " + setting + " --out " + (dir / "x"), dir);
+    const auto u = runEvkit(
+        "deblur " + (dir / "obs") + " --method benerf --set " + setting + " --out " + (dir / "x"),
+        dir);
     EXPECT_EQ(u.exit_code, 2) << setting;
     EXPECT_NE(u.err.find(message), std::string::npos) << u.err;
   };
@@ -295,7 +351,9 @@ TEST(Cli, DeblurWithBenerfWritesFramesTrajectoryDisparityCurveAndCheckpoint) {
   expectUsageError("dim_frame=2", "dim_frame=2 must be in [0, 1]");
   expectUsageError("prefit=-5", "prefit=-5");
   std::ofstream(dir / "bad.ckpt") << "EVKBNRF1 not really";
-  r = runEvkit("deblur " + (dir / "obs") + " --method benerf --set resume=" + (dir / "bad.ckpt") + " --out " + (dir / "x"), dir);
+  r = runEvkit("deblur " + (dir / "obs") + " --method benerf --set resume=" + (dir / "bad.ckpt") +
+                   " --out " + (dir / "x"),
+               dir);
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.err.find("bad.ckpt"), std::string::npos) << r.err;
   EXPECT_FALSE(test::fs::exists(dir / "x"));
@@ -311,20 +369,28 @@ TEST(Cli, DeblurStraightFromARecordingWithExtract) {
   f.exposure_end_us = rec.events.t[20000];
   rec.frames.push_back(f);
   writeRecording(dir / "rec.h5", rec);
-  const RunResult r = runEvkit("deblur --recording " + (dir / "rec.h5") + " --frame 0 --extract " + (dir / "obs") +
-                                   " --set contrast=0.2 --out " + (dir / "out"),
+  const RunResult r = runEvkit("deblur --recording " + (dir / "rec.h5") + " --frame 0 --extract " +
+                                   (dir / "obs") + " --set contrast=0.2 --out " + (dir / "out"),
                                dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_TRUE(test::fs::exists(dir / "obs/events.h5"));
-  EXPECT_EQ(readRecording(dir / "obs/events.h5").events.size(), rec.events.sliceTime(f.exposure_start_us, f.exposure_end_us + 1).size());
-  EXPECT_EQ(runEvkit("deblur --recording " + (dir / "rec.h5") + " --frame 4 --out " + (dir / "o2"), dir).exit_code, 1);
+  EXPECT_EQ(readRecording(dir / "obs/events.h5").events.size(),
+            rec.events.sliceTime(f.exposure_start_us, f.exposure_end_us + 1).size());
+  EXPECT_EQ(
+      runEvkit("deblur --recording " + (dir / "rec.h5") + " --frame 4 --out " + (dir / "o2"), dir)
+          .exit_code,
+      1);
 }
 
 TEST(Cli, BenchKeepsFinishedRunsWhenALaterOneFailsAndResumes) {
   ScratchDir dir;
-  const std::string common = "bench --suite hard --scenes hard_blur2,hard_noevents --size 48x32 --budgets 12 --threads 1 --out " + (dir / "b");
+  const std::string common =
+      "bench --suite hard --scenes hard_blur2,hard_noevents --size 48x32 --budgets 12 --threads 1 "
+      "--out " +
+      (dir / "b");
   // BeNeRF cannot start (its checkpoint is missing): its rows fail, blurry's and EDI's are kept.
-  RunResult r = runEvkit(common + " --methods blurry,edi,benerf --set benerf.resume=" + (dir / "missing.ckpt"), dir);
+  RunResult r = runEvkit(
+      common + " --methods blurry,edi,benerf --set benerf.resume=" + (dir / "missing.ckpt"), dir);
   EXPECT_EQ(r.exit_code, 1) << r.err;
   EXPECT_NE(r.err.find("2 runs failed"), std::string::npos) << r.err;
   std::string csv = test::readText(dir / "b/results.csv");
@@ -348,8 +414,12 @@ TEST(Cli, BenchKeepsFinishedRunsWhenALaterOneFailsAndResumes) {
   EXPECT_EQ(plot.cols, 960);
   EXPECT_TRUE(test::fs::exists(dir / "b/runs/hard_blur2/benerf_12it/trajectory.txt"));
   // The suite's thresholds (contrast.txt) reach both methods.
-  EXPECT_NE(test::readText(dir / "b/runs/hard_blur2/edi/summary.json").find("\"contrast_searched\": 0"), std::string::npos);
-  EXPECT_NE(test::readText(dir / "b/runs/hard_blur2/benerf_12it/summary.json").find("\"events_normalised\": 0"), std::string::npos);
+  EXPECT_NE(
+      test::readText(dir / "b/runs/hard_blur2/edi/summary.json").find("\"contrast_searched\": 0"),
+      std::string::npos);
+  EXPECT_NE(test::readText(dir / "b/runs/hard_blur2/benerf_12it/summary.json")
+                .find("\"events_normalised\": 0"),
+            std::string::npos);
   EXPECT_TRUE(test::fs::exists(dir / "b/suite/hard_noevents/blurry.png"));
   // With no events EDI returns the blurry frame itself.
   EXPECT_EQ(test::readText(dir / "b/runs/hard_noevents/edi/1600000000050000.png"),
@@ -363,12 +433,16 @@ TEST(Cli, BenchKeepsFinishedRunsWhenALaterOneFailsAndResumes) {
 
 TEST(Cli, BenchWithUnknownContrastHidesTheThresholdsFromEveryMethod) {
   ScratchDir dir;
-  const std::string common = "bench --suite all --scenes hard_blur2,planes_blur15 --size 48x32 --methods edi,benerf --budgets 12 --threads 1 --data " +
-                             (dir / "suite");
+  const std::string common =
+      "bench --suite all --scenes hard_blur2,planes_blur15 --size 48x32 --methods edi,benerf "
+      "--budgets 12 --threads 1 --data " +
+      (dir / "suite");
   const RunResult r = runEvkit(common + " --unknown-contrast --out " + (dir / "unknown"), dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
-  EXPECT_NE(test::readText(dir / "unknown/results.md").find("thresholds not given to the methods"), std::string::npos);
-  const auto summary = [&](const std::string& run, const std::string& scene, const std::string& method) {
+  EXPECT_NE(test::readText(dir / "unknown/results.md").find("thresholds not given to the methods"),
+            std::string::npos);
+  const auto summary = [&](const std::string& run, const std::string& scene,
+                           const std::string& method) {
     return test::readText(dir / (run + "/runs/" + scene + "/" + method + "/summary.json"));
   };
   for (const std::string scene : {"hard_blur2", "planes_blur15"}) {
@@ -380,7 +454,8 @@ TEST(Cli, BenchWithUnknownContrastHidesTheThresholdsFromEveryMethod) {
   // hard_blur2 (2 px of blur at 48 x 32): EDI's search runs to the end of its range, so BeNeRF
   // normalises its events, with the real-data weight (the paper's 2 at 1,024 event pixels, 4 at
   // fast's 2,048).
-  EXPECT_NE(summary("unknown", "hard_blur2", "edi").find("\"contrast_on\": 0.5"), std::string::npos);
+  EXPECT_NE(summary("unknown", "hard_blur2", "edi").find("\"contrast_on\": 0.5"),
+            std::string::npos);
   const std::string normalised = summary("unknown", "hard_blur2", "benerf_12it");
   EXPECT_NE(normalised.find("\"events_normalised\": 1"), std::string::npos) << normalised;
   EXPECT_NE(normalised.find("\"beta\": 4"), std::string::npos) << normalised;
@@ -394,16 +469,20 @@ TEST(Cli, BenchWithUnknownContrastHidesTheThresholdsFromEveryMethod) {
   EXPECT_LT(c, 0.49);
   const std::string direct = summary("unknown", "planes_blur15", "benerf_12it");
   EXPECT_NE(direct.find("\"events_normalised\": 0"), std::string::npos) << direct;
-  EXPECT_NE(direct.find("\"contrast_estimated\": " + edi.substr(at + 15, 6)), std::string::npos) << direct;
+  EXPECT_NE(direct.find("\"contrast_estimated\": " + edi.substr(at + 15, 6)), std::string::npos)
+      << direct;
 }
 
 TEST(Cli, DemoDeblursTheDefaultSceneWithEveryMethod) {
   ScratchDir dir;
-  const RunResult r = runEvkit("demo --size 64x48 --blur-px 6 --budget 3 --threads 1 --out " + (dir / "demo"), dir);
+  const RunResult r =
+      runEvkit("demo --size 64x48 --blur-px 6 --budget 3 --threads 1 --out " + (dir / "demo"), dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
-  for (const char* line : {"blurry ", "edi ", "benerf "}) EXPECT_NE(r.out.find(line), std::string::npos) << r.out;
-  for (const char* f : {"observation/blurry.png", "observation/events.h5", "side_by_side.png", "speed_vs_error.png", "results.csv",
-                        "results.md", "edi/latent.avi", "benerf/trajectory.txt", "benerf/disparity.png", "benerf/summary.json"}) {
+  for (const char* line : {"blurry ", "edi ", "benerf "})
+    EXPECT_NE(r.out.find(line), std::string::npos) << r.out;
+  for (const char* f : {"observation/blurry.png", "observation/events.h5", "side_by_side.png",
+                        "speed_vs_error.png", "results.csv", "results.md", "edi/latent.avi",
+                        "benerf/trajectory.txt", "benerf/disparity.png", "benerf/summary.json"}) {
     EXPECT_TRUE(test::fs::exists(dir / (std::string("demo/") + f))) << f;
   }
   // The side-by-side image: blurry, edi, benerf and the ground truth, each 64 wide.

@@ -1,16 +1,15 @@
 #include "evkit/deblur/benerf.h"
 
 #include <gtest/gtest.h>
-
 #include <omp.h>
 
 #include <cmath>
 #include <filesystem>
 
+#include "evkit/base/error.h"
 #include "evkit/deblur/edi.h"
 #include "evkit/deblur/metrics.h"
 #include "evkit/deblur/observation.h"
-#include "evkit/base/error.h"
 #include "evkit/synth/generator.h"
 #include "test_util.h"
 
@@ -19,7 +18,8 @@ namespace {
 
 using test::ScratchDir;
 
-Observation makeObservation(int width, int height, double blur_px, uint64_t seed, const std::string& preset = "planes", double rotation_share = 0.7) {
+Observation makeObservation(int width, int height, double blur_px, uint64_t seed,
+                            const std::string& preset = "planes", double rotation_share = 0.7) {
   ScratchDir dir;
   synth::SynthOptions o;
   o.width = width;
@@ -50,9 +50,12 @@ BenerfOptions tinyOptions() {
   return o;
 }
 
-double relativeError(double analytic, double numeric, double scale) { return std::abs(analytic - numeric) / scale; }
+double relativeError(double analytic, double numeric, double scale) {
+  return std::abs(analytic - numeric) / scale;
+}
 
-void checkWholePipeline(const BenerfOptions& options, bool view_targets = false, double brightness = 1) {
+void checkWholePipeline(const BenerfOptions& options, bool view_targets = false,
+                        double brightness = 1) {
   Observation obs = makeObservation(24, 18, 4, 3);
   obs.blurry.image *= brightness;
   BenerfProblem<double> problem(obs, options, 3);
@@ -98,8 +101,8 @@ void checkWholePipeline(const BenerfOptions& options, bool view_targets = false,
   const double knot_scale = numeric.cwiseAbs().maxCoeff();
   ASSERT_GT(knot_scale, 1e-6) << "the knots must influence the loss";
   for (Eigen::Index i = 0; i < n; ++i) {
-    EXPECT_LE(relativeError(knot_gradient[i], numeric[i], knot_scale), 1e-5) << "knot value " << i << ": analytic " << knot_gradient[i]
-                                                                             << ", numeric " << numeric[i];
+    EXPECT_LE(relativeError(knot_gradient[i], numeric[i], knot_scale), 1e-5)
+        << "knot value " << i << ": analytic " << knot_gradient[i] << ", numeric " << numeric[i];
   }
   // Field parameters: every touched table entry's first feature and a spread of MLP weights.
   problem.evaluate(batch, &knot_gradient);  // restores the gradients of the unperturbed problem
@@ -107,7 +110,8 @@ void checkWholePipeline(const BenerfOptions& options, bool view_targets = false,
   for (const auto& block : problem.field().parameters()) {
     const size_t stride = block.touched ? block.row_size * 7 : std::max<size_t>(1, block.size / 6);
     for (size_t i = 0; i < block.size; i += stride) {
-      if (block.gradients[i] != 0.0 || !block.touched) checks.emplace_back(&block.values[i], block.gradients[i]);
+      if (block.gradients[i] != 0.0 || !block.touched)
+        checks.emplace_back(&block.values[i], block.gradients[i]);
     }
   }
   ASSERT_GT(checks.size(), 20u);
@@ -126,7 +130,8 @@ void checkWholePipeline(const BenerfOptions& options, bool view_targets = false,
   ASSERT_GT(field_scale, 1e-6);
   for (size_t k = 0; k < checks.size(); ++k) {
     EXPECT_LE(relativeError(checks[k].second, field_numeric[k], field_scale), 1e-5)
-        << "field parameter " << k << ": analytic " << checks[k].second << ", numeric " << field_numeric[k];
+        << "field parameter " << k << ": analytic " << checks[k].second << ", numeric "
+        << field_numeric[k];
   }
 }
 
@@ -205,9 +210,12 @@ TEST(Benerf, ThresholdsComeFromTheSettingsContrastTxtOrEdisSearch) {
 TEST(Benerf, ViewTargetsMustMatchTheViewsAndTheFrame) {
   const Observation obs = makeObservation(24, 18, 4, 3);
   BenerfProblem<float> problem(obs, tinyOptions(), 3);
-  EXPECT_THROW(problem.setViewTargets({cv::Mat::zeros(18, 24, CV_32F)}), Error);  // 1 target, 3 views
-  EXPECT_THROW(problem.setViewTargets(std::vector<cv::Mat>(3, cv::Mat::zeros(18, 24, CV_8U))), Error);
-  EXPECT_THROW(problem.setViewTargets(std::vector<cv::Mat>(3, cv::Mat::zeros(17, 24, CV_32F))), Error);
+  EXPECT_THROW(problem.setViewTargets({cv::Mat::zeros(18, 24, CV_32F)}),
+               Error);  // 1 target, 3 views
+  EXPECT_THROW(problem.setViewTargets(std::vector<cv::Mat>(3, cv::Mat::zeros(18, 24, CV_8U))),
+               Error);
+  EXPECT_THROW(problem.setViewTargets(std::vector<cv::Mat>(3, cv::Mat::zeros(17, 24, CV_32F))),
+               Error);
   EXPECT_NO_THROW(problem.setViewTargets(std::vector<cv::Mat>(3, cv::Mat::zeros(18, 24, CV_32F))));
   EXPECT_NO_THROW(problem.setViewTargets({}));
 }
@@ -255,13 +263,16 @@ TEST(Benerf, MiddleFrameBeatsTheBlurryInputAndTheRotationIsRecovered) {
   ASSERT_EQ(r.frames.size(), 1u);
   const Frame& gt = gtMid(obs);
   const double gain = psnr(r.frames[0].image, gt.image) - psnr(obs.blurry.image, gt.image);
-  EXPECT_GE(gain, 3.0) << "BeNeRF " << psnr(r.frames[0].image, gt.image) << " dB, blurry " << psnr(obs.blurry.image, gt.image) << " dB";
+  EXPECT_GE(gain, 3.0) << "BeNeRF " << psnr(r.frames[0].image, gt.image) << " dB, blurry "
+                       << psnr(obs.blurry.image, gt.image) << " dB";
   // The rotation over the exposure (about 0.1 rad here): within 40% of the truth's length and
   // 20 degrees of its axis (rotation and translation trade off on a distant scene).
   ASSERT_TRUE(r.trajectory.has_value());
   const Vector3 estimate = exposureRotation(*r.trajectory), truth = exposureRotation(obs.gt_poses);
-  EXPECT_NEAR(estimate.norm(), truth.norm(), 0.4 * truth.norm()) << "estimate " << estimate.transpose() << ", truth " << truth.transpose();
-  EXPECT_LT(std::acos(std::clamp(estimate.normalized().dot(truth.normalized()), -1.0, 1.0)), 20.0 * M_PI / 180.0)
+  EXPECT_NEAR(estimate.norm(), truth.norm(), 0.4 * truth.norm())
+      << "estimate " << estimate.transpose() << ", truth " << truth.transpose();
+  EXPECT_LT(std::acos(std::clamp(estimate.normalized().dot(truth.normalized()), -1.0, 1.0)),
+            20.0 * M_PI / 180.0)
       << "estimate " << estimate.transpose() << ", truth " << truth.transpose();
   // The outputs a user gets: a trajectory over the exposure, a disparity image, a falling loss.
   EXPECT_EQ(r.disparity.size(), obs.blurry.image.size());
@@ -279,10 +290,15 @@ TEST(Benerf, RotationFromEventsFollowsTheTrueMotion) {
   for (const uint64_t seed : {1, 2, 3}) {
     const Observation obs = makeObservation(96, 72, 12, seed, "planes", 1.0);
     const nerf::PinholeCamera camera = obs.camera.withSize(96, 72);
-    const Vector3 estimate = rotationFromEvents(obs, camera, measureBlurLength(obs)), truth = exposureRotation(obs.gt_poses);
-    const double angle = std::acos(std::clamp(estimate.normalized().dot(truth.normalized()), -1.0, 1.0)) * 180 / M_PI;
-    EXPECT_NEAR(estimate.norm(), truth.norm(), 0.6 * truth.norm()) << "estimate " << estimate.transpose() << ", truth " << truth.transpose();
-    EXPECT_LT(angle, 20.0) << "estimate " << estimate.transpose() << ", truth " << truth.transpose();
+    const Vector3 estimate = rotationFromEvents(obs, camera, measureBlurLength(obs)),
+                  truth = exposureRotation(obs.gt_poses);
+    const double angle =
+        std::acos(std::clamp(estimate.normalized().dot(truth.normalized()), -1.0, 1.0)) * 180 /
+        M_PI;
+    EXPECT_NEAR(estimate.norm(), truth.norm(), 0.6 * truth.norm())
+        << "estimate " << estimate.transpose() << ", truth " << truth.transpose();
+    EXPECT_LT(angle, 20.0) << "estimate " << estimate.transpose() << ", truth "
+                           << truth.transpose();
   }
   Observation quiet = makeObservation(48, 36, 6, 1);
   quiet.events = EventStore(SensorSize{48, 36});
@@ -303,10 +319,12 @@ TEST(Benerf, PrefitFitsEdisLatentFrames) {
   const DeblurRequest request{{obs.blurry.midExposure()}, {}};
   const DeblurResult r = BenerfDeblurrer(o).run(obs, request);
   const Frame& gt = gtMid(obs);
-  const double prefit = psnr(r.frames[0].image, gt.image), blurry = psnr(obs.blurry.image, gt.image);
+  const double prefit = psnr(r.frames[0].image, gt.image),
+               blurry = psnr(obs.blurry.image, gt.image);
   EXPECT_GE(prefit, blurry + 3.0) << "prefit " << prefit << " dB, blurry " << blurry << " dB";
   ASSERT_TRUE(r.parameters.count("prefit_final_term"));
-  EXPECT_LT(r.parameters.at("prefit_final_term"), 3e-3);  // the views' renders within ~0.055 (RMS) of EDI's frames
+  EXPECT_LT(r.parameters.at("prefit_final_term"),
+            3e-3);  // the views' renders within ~0.055 (RMS) of EDI's frames
   EXPECT_GT(r.timings_s.at("prefit"), 0.0);
 }
 
@@ -316,7 +334,8 @@ TEST(Benerf, DeterministicWithOneThreadAndASeed) {
   o.iterations = 30;
   o.threads = 1;
   const DeblurRequest request{{obs.blurry.midExposure()}, {}};
-  const DeblurResult a = BenerfDeblurrer(o).run(obs, request), b = BenerfDeblurrer(o).run(obs, request);
+  const DeblurResult a = BenerfDeblurrer(o).run(obs, request),
+                     b = BenerfDeblurrer(o).run(obs, request);
   EXPECT_EQ(cv::norm(a.frames[0].image, b.frames[0].image, cv::NORM_INF), 0.0);
   EXPECT_EQ(a.curve, b.curve);
   o.seed = 2;
@@ -372,7 +391,8 @@ TEST(Benerf, NoNanOnBlackSaturatedTexturelessOrEventFreeInputs) {
       }
       const DeblurResult r = BenerfDeblurrer(o).run(obs, DeblurRequest{{1000, 11000, 21000}, {}});
       ASSERT_EQ(r.frames.size(), 3u);
-      for (const Frame& f : r.frames) EXPECT_TRUE(cv::checkRange(f.image)) << "level " << level << ", events " << with_events;
+      for (const Frame& f : r.frames)
+        EXPECT_TRUE(cv::checkRange(f.image)) << "level " << level << ", events " << with_events;
       EXPECT_TRUE(cv::checkRange(r.disparity));
       for (const auto& [it, loss] : r.curve) EXPECT_TRUE(std::isfinite(loss)) << "iteration " << it;
     }

@@ -3,15 +3,14 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <opencv2/imgproc.hpp>
 
+#include "evkit/base/error.h"
 #include "evkit/deblur/metrics.h"
 #include "evkit/deblur/observation.h"
-#include "evkit/base/error.h"
 #include "evkit/events/io.h"
 #include "evkit/synth/generator.h"
 #include "test_util.h"
-
-#include <opencv2/imgproc.hpp>
 
 namespace evkit {
 namespace {
@@ -44,13 +43,15 @@ Frame gtAt(const Observation& obs, int64_t t) {
 TEST(Edi, MiddleFrameBeatsTheBlurryInputBySixDecibels) {
   const Observation& obs = planes();
   ASSERT_TRUE(obs.contrast.has_value());
-  const int64_t mid = obs.blurry.exposure_start_us + (obs.blurry.exposure_end_us - obs.blurry.exposure_start_us) / 2;
+  const int64_t mid = obs.blurry.exposure_start_us +
+                      (obs.blurry.exposure_end_us - obs.blurry.exposure_start_us) / 2;
   auto edi = makeDeblurrer("edi");
   const DeblurResult r = edi->run(obs, DeblurRequest{{mid}});
   ASSERT_EQ(r.frames.size(), 1u);
   const Frame gt = gtAt(obs, mid);
   const double gain = psnr(r.frames[0].image, gt.image) - psnr(obs.blurry.image, gt.image);
-  EXPECT_GE(gain, 6.0) << "EDI " << psnr(r.frames[0].image, gt.image) << " dB, blurry " << psnr(obs.blurry.image, gt.image);
+  EXPECT_GE(gain, 6.0) << "EDI " << psnr(r.frames[0].image, gt.image) << " dB, blurry "
+                       << psnr(obs.blurry.image, gt.image);
   EXPECT_GT(ssim(r.frames[0].image, gt.image), ssim(obs.blurry.image, gt.image));
   EXPECT_EQ(r.parameters.at("contrast_searched"), 0.0);
 }
@@ -64,7 +65,8 @@ TEST(Edi, ContrastSearchRecoversTheSimulatorThresholdWithinTwentyPercent) {
 }
 
 // One pixel, hand-computed: exposure [0, 1000], ON events at 200 and 600, C = 0.5.
-// Levels: 0 on [0,200), 1 on [200,600), 2 on [600,1000]. (1/T) int exp(c E) = 0.2 + 0.4 e^0.5 + 0.4 e^1.
+// Levels: 0 on [0,200), 1 on [200,600), 2 on [600,1000]. (1/T) int exp(c E) = 0.2 + 0.4 e^0.5 + 0.4
+// e^1.
 TEST(Edi, ExactSumOverTheStepFunctionOfOnePixel) {
   Observation obs;
   obs.blurry.image = cv::Mat(1, 2, CV_32F, cv::Scalar(0.5));
@@ -86,9 +88,9 @@ TEST(Edi, ExactSumOverTheStepFunctionOfOnePixel) {
 TEST(Edi, SaturatedAndBlackPixelsKeepTheBlurryValueAndColourSharesTheGain) {
   Observation obs;
   obs.blurry.image = cv::Mat(1, 3, CV_32FC3);
-  obs.blurry.image.at<cv::Vec3f>(0, 0) = cv::Vec3f(1.0f, 1.0f, 1.0f);     // saturated
-  obs.blurry.image.at<cv::Vec3f>(0, 1) = cv::Vec3f(0.0f, 0.001f, 0.0f);   // black
-  obs.blurry.image.at<cv::Vec3f>(0, 2) = cv::Vec3f(0.2f, 0.4f, 0.1f);     // ordinary
+  obs.blurry.image.at<cv::Vec3f>(0, 0) = cv::Vec3f(1.0f, 1.0f, 1.0f);    // saturated
+  obs.blurry.image.at<cv::Vec3f>(0, 1) = cv::Vec3f(0.0f, 0.001f, 0.0f);  // black
+  obs.blurry.image.at<cv::Vec3f>(0, 2) = cv::Vec3f(0.2f, 0.4f, 0.1f);    // ordinary
   obs.blurry.exposure_start_us = 0;
   obs.blurry.exposure_end_us = 1000;
   obs.events.setSensor(SensorSize{3, 1});
@@ -109,7 +111,8 @@ TEST(Edi, RecordingPathExtractsTheFramesEventsAndWritesTheFolder) {
   ScratchDir dir;
   Recording rec;
   rec.events.setSensor(SensorSize{8, 6});
-  for (int64_t t = 0; t < 100000; t += 1000) rec.events.push_back(1605537493000000 + t, static_cast<uint16_t>(t / 1000 % 8), 2, 1);
+  for (int64_t t = 0; t < 100000; t += 1000)
+    rec.events.push_back(1605537493000000 + t, static_cast<uint16_t>(t / 1000 % 8), 2, 1);
   for (int i = 0; i < 3; ++i) {
     Frame f;
     f.image = cv::Mat(6, 8, CV_32F, cv::Scalar(0.25 * (i + 1)));
@@ -154,7 +157,8 @@ TEST(Deblurrer, RegistryAndSettingsAreChecked) {
   EXPECT_THROW(makeDeblurrer("benerf", {{"field", "voxels"}}), Error);
   EXPECT_THROW(makeDeblurrer("benerf", {{"iterations", "2.5"}}), Error);
   EXPECT_THROW(makeDeblurrer("benerf", {{"alpha", "0"}}), Error);
-  EXPECT_NO_THROW(makeDeblurrer("benerf", {{"budget", "90"}, {"preset", "real"}, {"trajectory", "split"}}));
+  EXPECT_NO_THROW(
+      makeDeblurrer("benerf", {{"budget", "90"}, {"preset", "real"}, {"trajectory", "split"}}));
   EXPECT_THROW(makeDeblurrer("edi", {{"contrasts", "0.2"}}), Error);
   EXPECT_THROW(makeDeblurrer("edi", {{"contrast", "-1"}}), Error);
   const Observation& obs = planes();

@@ -41,37 +41,54 @@ TEST(Settings, OneBudgetGrammar) {
   EXPECT_EQ(steps.options.iterations, 250);
   EXPECT_EQ(steps.options.hash.grid.log2_table, benerfBudget("fast").hash.grid.log2_table);
   EXPECT_EQ(parseBenerfBudget("quality").options.iterations, 4000);
-  for (const char* bad : {"60x", "-5", "0", "slow", "", "2.5"}) EXPECT_THROW(parseBenerfBudget(bad), Error) << bad;
+  for (const char* bad : {"60x", "-5", "0", "slow", "", "2.5"})
+    EXPECT_THROW(parseBenerfBudget(bad), Error) << bad;
   // --set budget= takes the same tokens.
   EXPECT_EQ(benerfOptions({{"budget", "250"}}).iterations, 250);
   EXPECT_DOUBLE_EQ(benerfOptions({{"budget", "1.5s"}}).budget_seconds, 1.5);
-  EXPECT_EQ(benerfOptions({{"budget", "fast"}, {"iterations", "7"}}).iterations, 7);  // keys over the budget
+  EXPECT_EQ(benerfOptions({{"budget", "fast"}, {"iterations", "7"}}).iterations,
+            7);  // keys over the budget
 }
 
 TEST(Settings, CheckRefusesWhatParsingRefuses) {
   BenerfOptions o;
   o.alpha = 0;
   EXPECT_NE(errorOf([&] { o.check(); }).find("alpha=0 must be in (0, 1]"), std::string::npos);
-  EXPECT_NE(errorOf([] { benerfOptions({{"alpha", "0"}}); }).find("alpha=0 must be in (0, 1]"), std::string::npos);
+  EXPECT_NE(errorOf([] {
+              benerfOptions({{"alpha", "0"}});
+            }).find("alpha=0 must be in (0, 1]"),
+            std::string::npos);
   o = BenerfOptions{};
   o.samples = 1;
-  EXPECT_NE(errorOf([&] { o.check(); }).find("samples=1 must be an integer >= 2"), std::string::npos);
+  EXPECT_NE(errorOf([&] { o.check(); }).find("samples=1 must be an integer >= 2"),
+            std::string::npos);
   EdiOptions e;
   e.search_min = 0.6;
   EXPECT_NE(errorOf([&] { e.check(); }).find("c_min < c_max"), std::string::npos);
-  EXPECT_NE(errorOf([] { ediOptions({{"c_min", "-1"}}); }).find("c_min=-1 must be > 0"), std::string::npos);
+  EXPECT_NE(errorOf([] {
+              ediOptions({{"c_min", "-1"}});
+            }).find("c_min=-1 must be > 0"),
+            std::string::npos);
 }
 
 TEST(Settings, UnknownKeysListTheTable) {
   const std::string benerf = errorOf([] { makeDeblurrer("benerf", {{"itertions", "5"}}); });
-  EXPECT_NE(benerf.find("benerf: unknown setting 'itertions' (known: budget, preset, field, iterations,"), std::string::npos) << benerf;
+  EXPECT_NE(
+      benerf.find("benerf: unknown setting 'itertions' (known: budget, preset, field, iterations,"),
+      std::string::npos)
+      << benerf;
   const std::string edi = errorOf([] { makeDeblurrer("edi", {{"contrasts", "0.2"}}); });
-  EXPECT_NE(edi.find("edi: unknown setting 'contrasts' (known: contrast, search, c_min, c_max, margin_us)"), std::string::npos) << edi;
+  EXPECT_NE(
+      edi.find(
+          "edi: unknown setting 'contrasts' (known: contrast, search, c_min, c_max, margin_us)"),
+      std::string::npos)
+      << edi;
 }
 
 TEST(Settings, HelpShowsEveryKeyWithItsDefault) {
   const std::string help = deblurrerHelp("benerf");
-  for (const std::string& key : benerfSettings().keys()) EXPECT_NE(help.find("  " + key + " ("), std::string::npos) << key;
+  for (const std::string& key : benerfSettings().keys())
+    EXPECT_NE(help.find("  " + key + " ("), std::string::npos) << key;
   EXPECT_NE(help.find("samples (integer, default 8)"), std::string::npos) << help;
   EXPECT_NE(help.find("depth_scale (number, default 0.02)"), std::string::npos) << help;
   EXPECT_NE(deblurrerHelp("edi").find("c_max (number, default 0.5)"), std::string::npos);
@@ -79,13 +96,17 @@ TEST(Settings, HelpShowsEveryKeyWithItsDefault) {
 }
 
 TEST(Settings, ChoicesRoundTripThroughTheirNames) {
-  const BenerfOptions o = benerfOptions({{"field", "mlp"}, {"trajectory", "split"}, {"init", "identity"}, {"normalise", "0"}});
+  const BenerfOptions o = benerfOptions(
+      {{"field", "mlp"}, {"trajectory", "split"}, {"init", "identity"}, {"normalise", "0"}});
   EXPECT_EQ(o.field, BenerfOptions::FieldKind::kMlp);
   EXPECT_DOUBLE_EQ(o.field_lr, 5e-4);  // the paper's rate for its MLP
   EXPECT_EQ(o.trajectory, TrajectoryKind::kCubicSplit);
   EXPECT_EQ(o.init, BenerfOptions::Init::kIdentity);
   EXPECT_EQ(o.event_form, BenerfOptions::EventForm::kDirect);
-  EXPECT_NE(errorOf([] { benerfOptions({{"field", "voxels"}}); }).find("field must be hash or mlp, not 'voxels'"), std::string::npos);
+  EXPECT_NE(errorOf([] {
+              benerfOptions({{"field", "voxels"}});
+            }).find("field must be hash or mlp, not 'voxels'"),
+            std::string::npos);
 }
 
 }  // namespace

@@ -7,8 +7,8 @@
 
 #include "evkit/base/error.h"
 #include "evkit/events/npy.h"
-#include "evkit/events/slicer.h"
 #include "evkit/events/random_events.h"
+#include "evkit/events/slicer.h"
 #include "test_util.h"
 
 namespace evkit {
@@ -131,8 +131,8 @@ TEST(Accumulate, WindowsByTimeAndByCountCoverEveryEventOnce) {
 TEST(Accumulate, PolarityRenderingIsRedOnBlueOffWhiteEmpty) {
   const cv::Mat png = renderPolarity(accumulateSigned(handStore().view()), 1.0f);
   ASSERT_EQ(png.type(), CV_8UC3);
-  EXPECT_EQ(png.at<cv::Vec3b>(0, 1), cv::Vec3b(0, 0, 255));    // ON: red (BGR)
-  EXPECT_EQ(png.at<cv::Vec3b>(1, 2), cv::Vec3b(255, 0, 0));    // OFF: blue
+  EXPECT_EQ(png.at<cv::Vec3b>(0, 1), cv::Vec3b(0, 0, 255));      // ON: red (BGR)
+  EXPECT_EQ(png.at<cv::Vec3b>(1, 2), cv::Vec3b(255, 0, 0));      // OFF: blue
   EXPECT_EQ(png.at<cv::Vec3b>(1, 0), cv::Vec3b(255, 255, 255));  // no events: white
   const cv::Mat cm = renderColormap(timeSurface(handStore().view(), 500, 100.0).on);
   EXPECT_EQ(cm.type(), CV_8UC3);
@@ -157,8 +157,9 @@ namespace evkit {
 namespace {
 
 // Windows of a slicer fed in chunks of `chunk` events: (index, t_begin, t_end, events).
-std::vector<std::tuple<size_t, int64_t, int64_t, size_t>> slice(EventSlicer slicer, const EventStore& ev, size_t chunk,
-                                                               size_t max_windows = 1000) {
+std::vector<std::tuple<size_t, int64_t, int64_t, size_t>> slice(EventSlicer slicer,
+                                                                const EventStore& ev, size_t chunk,
+                                                                size_t max_windows = 1000) {
   std::vector<std::tuple<size_t, int64_t, int64_t, size_t>> out;
   const auto keep = [&](const EventSlicer::Window& w) {
     out.emplace_back(w.index, w.t_begin, w.t_end, w.events.size());
@@ -181,10 +182,11 @@ TEST(EventSlicer, ByTimeGivesTheSameWindowsWhateverTheChunks) {
   const EventStore ev = tenEvents();
   using W = std::tuple<size_t, int64_t, int64_t, size_t>;
   // 20 µs windows from the first event; the empty 200..220..260 windows inside the stream appear.
-  const std::vector<W> expected = {{0, 100, 120, 2}, {1, 120, 140, 3}, {2, 140, 160, 2}, {3, 160, 180, 0},
-                                   {4, 180, 200, 2}, {5, 200, 220, 0}, {6, 220, 240, 0}, {7, 240, 260, 0},
-                                   {8, 260, 280, 1}};
-  for (size_t chunk : {1, 3, 10}) EXPECT_EQ(slice(EventSlicer::byTime(20, ev.sensor()), ev, chunk), expected) << chunk;
+  const std::vector<W> expected = {{0, 100, 120, 2}, {1, 120, 140, 3}, {2, 140, 160, 2},
+                                   {3, 160, 180, 0}, {4, 180, 200, 2}, {5, 200, 220, 0},
+                                   {6, 220, 240, 0}, {7, 240, 260, 0}, {8, 260, 280, 1}};
+  for (size_t chunk : {1, 3, 10})
+    EXPECT_EQ(slice(EventSlicer::byTime(20, ev.sensor()), ev, chunk), expected) << chunk;
 }
 
 TEST(EventSlicer, ByCountOriginEndAndStop) {
@@ -195,8 +197,10 @@ TEST(EventSlicer, ByCountOriginEndAndStop) {
   EventSlicer windowed = EventSlicer::byTime(50, ev.sensor());
   windowed.setOrigin(110);
   windowed.setEnd(190);
-  EXPECT_EQ(slice(std::move(windowed), ev, 2), (std::vector<W>{{0, 110, 160, 5}, {1, 160, 210, 1}}));
-  EXPECT_EQ(slice(EventSlicer::byTime(20, ev.sensor()), ev, 10, 2).size(), 2u);  // the callback stops it
+  EXPECT_EQ(slice(std::move(windowed), ev, 2),
+            (std::vector<W>{{0, 110, 160, 5}, {1, 160, 210, 1}}));
+  EXPECT_EQ(slice(EventSlicer::byTime(20, ev.sensor()), ev, 10, 2).size(),
+            2u);  // the callback stops it
   EXPECT_THROW(EventSlicer::byCount(0, ev.sensor()), Error);
 }
 

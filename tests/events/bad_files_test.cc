@@ -3,7 +3,6 @@
 // here as a growing descriptor count; LeakSanitizer reports leaked memory in the sanitizer build.
 
 #include <gtest/gtest.h>
-
 #include <unistd.h>
 
 #include <cstring>
@@ -49,7 +48,8 @@ long residentKb() {
 std::string bytesOf(const std::string& path) { return test::readText(path); }
 
 void writeBytes(const std::string& path, const std::string& bytes) {
-  std::ofstream(path, std::ios::binary | std::ios::trunc).write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  std::ofstream(path, std::ios::binary | std::ios::trunc)
+      .write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
 }
 
 struct Seed {
@@ -69,36 +69,44 @@ std::vector<Seed> makeSeeds(const ScratchDir& dir) {
   frame.exposure_end_us = rec.events.t.front() + 1000;
   rec.frames.push_back(frame);
   std::vector<Seed> seeds;
-  for (const auto& [format, ext] : {std::pair{Format::kText, std::string(".txt")}, {Format::kHdf5, ".h5"},
+  for (const auto& [format, ext] : {std::pair{Format::kText, std::string(".txt")},
+                                    {Format::kHdf5, ".h5"},
                                     {Format::kAedat4, ".aedat4"}}) {
     const std::string path = dir / ("seed" + ext);
     Recording written = rec;
-    if (format == Format::kText) written.frames.clear();  // a text file keeps its frames in a folder
+    if (format == Format::kText)
+      written.frames.clear();  // a text file keeps its frames in a folder
     writeRecording(path, written, format);
     seeds.push_back({format, ext, bytesOf(path)});
   }
   const auto raw = [](const char* s, size_t n) { return std::string(s, n); };
-  seeds.push_back({Format::kAedat2, ".aedat",
-                   "#!AER-DAT2.0\r\n# This is a raw AE data file created by the DAVIS240C\r\n" +
-                       raw("\x00\x01\x02\x00\x00\x00\x10\x00\x00\x21\x04\x00\x00\x00\x10\x08", 16)});
-  seeds.push_back({Format::kAedat31, ".aedat",
-                   "#!AER-DAT3.1\r\n#Source 1: DAVIS240C\r\n#!END-HEADER\r\n" +
-                       raw("\x01\x00\x01\x00\x08\x00\x00\x00\x04\x00\x00\x00\x00\x00\x00\x00\x01\x00\x00\x00"
-                           "\x01\x00\x00\x00\x01\x00\x00\x00\x07\x00\x02\x00\x10\x00\x00\x00",
-                           36)});
-  seeds.push_back({Format::kEvt2, ".raw", "% evt 2.0\n% geometry 640x480\n" + raw("\x0a\x00\x00\x80\x09\x38\x40\x11", 8)});
+  seeds.push_back(
+      {Format::kAedat2, ".aedat",
+       "#!AER-DAT2.0\r\n# This is a raw AE data file created by the DAVIS240C\r\n" +
+           raw("\x00\x01\x02\x00\x00\x00\x10\x00\x00\x21\x04\x00\x00\x00\x10\x08", 16)});
+  seeds.push_back(
+      {Format::kAedat31, ".aedat",
+       "#!AER-DAT3.1\r\n#Source 1: DAVIS240C\r\n#!END-HEADER\r\n" +
+           raw("\x01\x00\x01\x00\x08\x00\x00\x00\x04\x00\x00\x00\x00\x00\x00\x00\x01\x00\x00\x00"
+               "\x01\x00\x00\x00\x01\x00\x00\x00\x07\x00\x02\x00\x10\x00\x00\x00",
+               36)});
+  seeds.push_back({Format::kEvt2, ".raw",
+                   "% evt 2.0\n% geometry 640x480\n" + raw("\x0a\x00\x00\x80\x09\x38\x40\x11", 8)});
   seeds.push_back({Format::kEvt3, ".raw",
                    "% evt 3.0\n% format EVT3;height=720;width=1280\n% end\n" +
                        raw("\x01\x80\x05\x60\x0a\x00\x03\x2a\x64\x30\x05\x40\x80\x50", 14)});
   seeds.push_back({Format::kDat, ".dat",
-                   "% Version 2\n% Width 304\n% Height 240\n" + raw("\x0c\x08\x64\x00\x00\x00\x2c\x41\x04\x10", 10)});
+                   "% Version 2\n% Width 304\n% Height 240\n" +
+                       raw("\x0c\x08\x64\x00\x00\x00\x2c\x41\x04\x10", 10)});
   return seeds;
 }
 
 // The kinds of damage a user's files come with.
 std::string damage(const std::string& good, int kind, std::mt19937& rng) {
   std::string s = good;
-  const auto at = [&](size_t n) { return n == 0 ? size_t{0} : std::uniform_int_distribution<size_t>(0, n - 1)(rng); };
+  const auto at = [&](size_t n) {
+    return n == 0 ? size_t{0} : std::uniform_int_distribution<size_t>(0, n - 1)(rng);
+  };
   switch (kind) {
     case 0:  // truncated
       s.resize(at(s.size()));
@@ -122,7 +130,8 @@ std::string damage(const std::string& good, int kind, std::mt19937& rng) {
       break;
     }
     default:  // scattered bit flips
-      for (int i = 0; i < 8 && !s.empty(); ++i) s[at(s.size())] ^= static_cast<char>(1 << (rng() % 8));
+      for (int i = 0; i < 8 && !s.empty(); ++i)
+        s[at(s.size())] ^= static_cast<char>(1 << (rng() % 8));
       break;
   }
   return s;
@@ -132,7 +141,8 @@ std::string damage(const std::string& good, int kind, std::mt19937& rng) {
 // the expected outcome for most damaged files, anything else fails the test.
 void readAll(const std::string& path, Format format) {
   const auto fail = [&](const char* what) {
-    ADD_FAILURE() << formatName(format) << " reader threw something other than evkit::Error: " << what;
+    ADD_FAILURE() << formatName(format)
+                  << " reader threw something other than evkit::Error: " << what;
   };
   try {
     auto reader = openReader(path, format);
@@ -155,7 +165,7 @@ TEST(BadFiles, TwoThousandBadFilesPerFormatLeakNoDescriptorAndNoMemory) {
   ScratchDir dir;
   const std::vector<Seed> seeds = makeSeeds(dir);
   constexpr int kFilesPerFormat = 2000;
-  constexpr int kWarmUp = 20;           // files per format read before the baseline is taken
+  constexpr int kWarmUp = 20;  // files per format read before the baseline is taken
   std::mt19937 rng(20261123);
 
   const auto pass = [&](int first, int last) {
@@ -184,7 +194,8 @@ TEST(BadFiles, TwoThousandBadFilesPerFormatLeakNoDescriptorAndNoMemory) {
 TEST(BadFiles, FuzzFindingsStayFixed) {
   // tests/fuzz/regressions/<reader>/: inputs that once crashed, leaked or escaped as another
   // exception; each must now be read or refused with an evkit::Error, leaving nothing open.
-  const std::filesystem::path root = std::filesystem::path(EVKIT_SOURCE_DIR) / "tests/fuzz/regressions";
+  const std::filesystem::path root =
+      std::filesystem::path(EVKIT_SOURCE_DIR) / "tests/fuzz/regressions";
   int inputs = 0;
   for (const auto& reader_dir : std::filesystem::directory_iterator(root)) {
     const Format format = parseFormat(reader_dir.path().filename().string());

@@ -47,7 +47,8 @@ TEST(Decimal, ParsesScientificNotation) {
 
 TEST(Decimal, RejectsMalformedAndOverflowingNumbers) {
   bool ok = true;
-  for (const std::string bad : {"", "-", ".", "abc", "1e", "1e+", "99999999999999999999", "1e20", "--1"}) {
+  for (const std::string bad :
+       {"", "-", ".", "abc", "1e", "1e+", "99999999999999999999", "1e20", "--1"}) {
     parse(bad, &ok);
     EXPECT_FALSE(ok) << "'" << bad << "'";
   }
@@ -65,7 +66,8 @@ TEST(Decimal, FormatThenParseIsIdentityOnRandomMicroseconds) {
   std::uniform_int_distribution<int64_t> dist(-(int64_t{1} << 55), int64_t{1} << 55);
   char buf[32];
   for (int i = 0; i < 100000; ++i) {
-    const int64_t t = i < 3 ? std::array<int64_t, 3>{0, -1, 1605537493718345}[static_cast<size_t>(i)] : dist(rng);
+    const int64_t t =
+        i < 3 ? std::array<int64_t, 3>{0, -1, 1605537493718345}[static_cast<size_t>(i)] : dist(rng);
     char* end = formatMicrosAsSeconds(t, buf);
     EXPECT_EQ(parse(std::string(buf, end)), t);
   }

@@ -1,9 +1,9 @@
 #include "evkit/events/event_store.h"
-#include "evkit/events/pixel_index.h"
 
 #include <gtest/gtest.h>
 
 #include "evkit/base/error.h"
+#include "evkit/events/pixel_index.h"
 #include "evkit/events/random_events.h"
 
 namespace evkit {
@@ -73,7 +73,9 @@ TEST(EventStore, ValidateNamesTheFirstOffender) {
   try {
     validate(backwards.view(), "mem", 100);
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("event 103: timestamp 19 us goes back in time"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("event 103: timestamp 19 us goes back in time"),
+              std::string::npos)
+        << e.what();
   }
   EventStore polarity = smallStore();
   polarity.p[0] = 0;

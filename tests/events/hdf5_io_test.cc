@@ -1,6 +1,5 @@
-#include <hdf5.h>
-
 #include <gtest/gtest.h>
+#include <hdf5.h>
 
 #include "evkit/base/error.h"
 #include "evkit/events/io.h"
@@ -97,7 +96,8 @@ TEST(Hdf5Io, FramesRoundTripWithExposureAndBitDepth) {
         f.bit_depth = bits;
         rec.frames.push_back(f);
       }
-      const std::string path = dir / ("f" + std::to_string(channels) + "_" + std::to_string(bits) + ".h5");
+      const std::string path =
+          dir / ("f" + std::to_string(channels) + "_" + std::to_string(bits) + ".h5");
       writeRecording(path, rec);
       const Recording back = readRecording(path);
       ASSERT_EQ(back.frames.size(), 3u);
@@ -117,7 +117,8 @@ TEST(Hdf5Io, FramesRoundTripWithExposureAndBitDepth) {
   }
 }
 
-// Writes a DSEC-style file: events/{t uint32 relative, x, y uint16, p uint8 0/1}, ms_to_idx, t_offset.
+// Writes a DSEC-style file: events/{t uint32 relative, x, y uint16, p uint8 0/1}, ms_to_idx,
+// t_offset.
 void writeDsec(const std::string& path, const EventStore& ev, int64_t t_offset) {
   const hid_t f = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
   const hid_t g = H5Gcreate2(f, "events", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
@@ -128,7 +129,8 @@ void writeDsec(const std::string& path, const EventStore& ev, int64_t t_offset) 
     t[i] = static_cast<uint32_t>(ev.t[i] - t_offset);
     p[i] = ev.p[i] > 0 ? 1 : 0;
   }
-  const auto put = [&](hid_t loc, const char* name, hid_t file_type, hid_t mem_type, const void* data, hsize_t count) {
+  const auto put = [&](hid_t loc, const char* name, hid_t file_type, hid_t mem_type,
+                       const void* data, hsize_t count) {
     const hid_t space = H5Screate_simple(1, &count, nullptr);
     const hid_t dcpl = H5Pcreate(H5P_DATASET_CREATE);
     if (count > 0) {
@@ -152,7 +154,8 @@ void writeDsec(const std::string& path, const EventStore& ev, int64_t t_offset) 
   }
   put(f, "ms_to_idx", H5T_STD_U64LE, H5T_NATIVE_UINT64, ms_to_idx.data(), ms_to_idx.size());
   const hid_t scalar = H5Screate(H5S_SCALAR);
-  const hid_t ds = H5Dcreate2(f, "t_offset", H5T_STD_I64LE, scalar, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  const hid_t ds =
+      H5Dcreate2(f, "t_offset", H5T_STD_I64LE, scalar, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
   H5Dwrite(ds, H5T_NATIVE_INT64, H5S_ALL, H5S_ALL, H5P_DEFAULT, &t_offset);
   H5Dclose(ds);
   H5Sclose(scalar);
@@ -201,14 +204,16 @@ TEST(Hdf5Io, ReadsTheEventUtilsLayoutWithImages) {
   const hsize_t res_n = 2;
   const hid_t res_space = H5Screate_simple(1, &res_n, nullptr);
   const int64_t res[2] = {6, 8};  // (height, width)
-  const hid_t attr = H5Acreate2(f, "sensor_resolution", H5T_STD_I64LE, res_space, H5P_DEFAULT, H5P_DEFAULT);
+  const hid_t attr =
+      H5Acreate2(f, "sensor_resolution", H5T_STD_I64LE, res_space, H5P_DEFAULT, H5P_DEFAULT);
   H5Awrite(attr, H5T_NATIVE_INT64, res);
   H5Aclose(attr);
   const hid_t images = H5Gcreate2(f, "images", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
   const hsize_t dims[2] = {6, 8};
   const hid_t img_space = H5Screate_simple(2, dims, nullptr);
   std::vector<uint8_t> pixels(48, 51);
-  const hid_t img = H5Dcreate2(images, "image000000000", H5T_STD_U8LE, img_space, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+  const hid_t img = H5Dcreate2(images, "image000000000", H5T_STD_U8LE, img_space, H5P_DEFAULT,
+                               H5P_DEFAULT, H5P_DEFAULT);
   H5Dwrite(img, H5T_NATIVE_UINT8, H5S_ALL, H5S_ALL, H5P_DEFAULT, pixels.data());
   const hid_t scalar = H5Screate(H5S_SCALAR);
   const double stamp = 0.6;
@@ -256,7 +261,8 @@ TEST(Hdf5Io, ReadsFilesH5pyWroteWithEveryObjectHeaderVersion) {
   // files must accept all of them.
   for (const char* name : {"h5py_earliest.h5", "h5py_latest.h5"}) {
     SCOPED_TRACE(name);
-    const Recording rec = readRecording(std::string(EVKIT_SOURCE_DIR) + "/tests/events/data/" + name);
+    const Recording rec =
+        readRecording(std::string(EVKIT_SOURCE_DIR) + "/tests/events/data/" + name);
     EXPECT_EQ(rec.info.layout, "event_utils");
     EXPECT_EQ(rec.info.sensor.width, 34);
     EXPECT_EQ(rec.info.sensor.height, 26);

@@ -1,7 +1,6 @@
 // Bad input: each case gives one evkit::Error naming the file, the position and the problem.
 
 #include <gtest/gtest.h>
-
 #include <hdf5.h>
 
 #include <random>
@@ -54,8 +53,10 @@ TEST(IoErrors, MalformedTextLinesNameTheLineAndTheField) {
       {"0.1 1 2 2\n", "line 1: expected 't x y p'; cannot read polarity"},
       {"0.1 1 2 1 9\n", "line 1: expected 't x y p'; cannot read end of line"},
       {"0.1 1 2 1\n0.05 1 2 1\n", "line 2: timestamp 0.050000 s goes back in time"},
-      {"10 10\n0.1 1 2 1\n0.2 10 2 1\n", "line 3: event (x, y) = (10, 2) lies outside the 10x10 sensor"},
-      {"0.1 1 2 1\n0.2 1 2", "line 2: expected 't x y p'; cannot read polarity"},  // truncated last line
+      {"10 10\n0.1 1 2 1\n0.2 10 2 1\n",
+       "line 3: event (x, y) = (10, 2) lies outside the 10x10 sensor"},
+      {"0.1 1 2 1\n0.2 1 2",
+       "line 2: expected 't x y p'; cannot read polarity"},  // truncated last line
       {"1e400 1 2 1\n", "line 1: expected 't x y p'; cannot read the timestamp"},
   };
   int i = 0;
@@ -80,7 +81,8 @@ TEST(IoErrors, MislabelledFiles) {
   rec.events = randomEvents({});
   writeRecording(dir / "real.h5", rec);
   test::fs::copy_file(dir / "real.h5", dir / "real.txt");
-  expectContains(readError(dir / "real.txt"), "a hdf5 file named like a text file; rename it or pass --format hdf5");
+  expectContains(readError(dir / "real.txt"),
+                 "a hdf5 file named like a text file; rename it or pass --format hdf5");
 }
 
 TEST(IoErrors, TruncatedAndCorruptHdf5) {
@@ -102,7 +104,8 @@ TEST(IoErrors, TruncatedAndCorruptHdf5) {
   std::mt19937 rng(3);
   for (int k = 0; k < 20; ++k) {
     std::string corrupt = bytes;
-    for (int j = 0; j < 64; ++j) corrupt[std::uniform_int_distribution<size_t>(4096, corrupt.size() - 1)(rng)] ^= 0x5a;
+    for (int j = 0; j < 64; ++j)
+      corrupt[std::uniform_int_distribution<size_t>(4096, corrupt.size() - 1)(rng)] ^= 0x5a;
     const std::string path = dir / ("corrupt" + std::to_string(k) + ".h5");
     writeText(path, corrupt);
     readError(path);
@@ -125,8 +128,9 @@ TEST(IoErrors, Hdf5WithoutEventsOrWithBadValues) {
 }
 
 // Writes an evkit-layout file with arbitrary (possibly invalid) columns through the raw C API.
-void writeRawEvkit(const std::string& path, const std::vector<int64_t>& t, const std::vector<uint16_t>& x,
-                   const std::vector<uint16_t>& y, const std::vector<int8_t>& p, int width, int height) {
+void writeRawEvkit(const std::string& path, const std::vector<int64_t>& t,
+                   const std::vector<uint16_t>& x, const std::vector<uint16_t>& y,
+                   const std::vector<int8_t>& p, int width, int height) {
   const hid_t f = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
   const hid_t g = H5Gcreate2(f, "events", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
   const auto put = [&](const char* name, hid_t type, const void* data, hsize_t n) {
@@ -141,7 +145,8 @@ void writeRawEvkit(const std::string& path, const std::vector<int64_t>& t, const
   put("y", H5T_NATIVE_UINT16, y.data(), y.size());
   put("p", H5T_NATIVE_INT8, p.data(), p.size());
   const hid_t scalar = H5Screate(H5S_SCALAR);
-  for (const auto& [name, value] : {std::pair<const char*, int>{"sensor_width", width}, {"sensor_height", height},
+  for (const auto& [name, value] : {std::pair<const char*, int>{"sensor_width", width},
+                                    {"sensor_height", height},
                                     {"evkit_layout", 1}}) {
     const hid_t a = H5Acreate2(f, name, H5T_NATIVE_INT, scalar, H5P_DEFAULT, H5P_DEFAULT);
     H5Awrite(a, H5T_NATIVE_INT, &value);
@@ -155,9 +160,11 @@ void writeRawEvkit(const std::string& path, const std::vector<int64_t>& t, const
 TEST(IoErrors, Hdf5EventsOutsideTheSensorBackwardsInTimeOrMismatchedColumns) {
   ScratchDir dir;
   writeRawEvkit(dir / "back.h5", {5, 6, 4}, {1, 1, 1}, {1, 1, 1}, {1, -1, 1}, 10, 10);
-  expectContains(readError(dir / "back.h5"), "event 2: timestamp 4 us goes back in time (previous 6 us)");
+  expectContains(readError(dir / "back.h5"),
+                 "event 2: timestamp 4 us goes back in time (previous 6 us)");
   writeRawEvkit(dir / "out.h5", {5, 6, 7}, {1, 10, 1}, {1, 1, 1}, {1, -1, 1}, 10, 10);
-  expectContains(readError(dir / "out.h5"), "event 1: (x, y) = (10, 1) lies outside the 10x10 sensor");
+  expectContains(readError(dir / "out.h5"),
+                 "event 1: (x, y) = (10, 1) lies outside the 10x10 sensor");
   writeRawEvkit(dir / "pol.h5", {5, 6, 7}, {1, 1, 1}, {1, 1, 1}, {1, 0, 1}, 10, 10);
   expectContains(readError(dir / "pol.h5"), "event 1: polarity 0, expected +1 or -1");
   writeRawEvkit(dir / "len.h5", {5, 6, 7}, {1, 1}, {1, 1, 1}, {1, 1, 1}, 10, 10);
@@ -176,7 +183,8 @@ TEST(IoErrors, RandomGarbageNeverCrashesTheReaders) {
       // Mostly valid-looking text with one damaged character.
       junk = "346 260\n";
       for (int i = 0; i < 50; ++i) junk += "0." + std::to_string(100000 + i) + " 1 2 1\n";
-      junk[std::uniform_int_distribution<size_t>(0, junk.size() - 1)(rng)] = static_cast<char>(rng());
+      junk[std::uniform_int_distribution<size_t>(0, junk.size() - 1)(rng)] =
+          static_cast<char>(rng());
     }
     const std::string path = dir / ("junk" + std::to_string(k) + ".txt");
     writeText(path, junk);

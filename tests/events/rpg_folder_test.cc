@@ -19,7 +19,8 @@ TEST(RpgFolder, ReadsEventsImagesAndCalibration) {
     cv::Mat img(5, 6, CV_32F, cv::Scalar(0.25 * (i + 1)));
     writeImageFile(dir / ("images/frame_0000000" + std::to_string(i) + ".png"), img, 8);
   }
-  writeText(dir / "images.txt", "0.0015 images/frame_00000000.png\n0.015 images/frame_00000001.png\n");
+  writeText(dir / "images.txt",
+            "0.0015 images/frame_00000000.png\n0.015 images/frame_00000001.png\n");
   writeText(dir / "calib.txt", "199.1 198.7 132.2 110.8 -0.36 0.15 0.001 -0.0002 0.0\n");
 
   EXPECT_EQ(detectFormat(dir.path().string()), Format::kRpgFolder);
@@ -45,7 +46,8 @@ TEST(RpgFolder, BadImageListAndCalibrationAreReported) {
     readRecording(dir.path().string());
     FAIL();
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("missing.png: no such image file"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("missing.png: no such image file"), std::string::npos)
+        << e.what();
   }
   writeText(dir / "images.txt", "zero images/a.png\n");
   EXPECT_THROW(readRecording(dir.path().string()), Error);
@@ -55,7 +57,8 @@ TEST(RpgFolder, BadImageListAndCalibrationAreReported) {
     readRecording(dir.path().string());
     FAIL();
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("calib.txt: line 1: expected 4, 8 or 9 numbers"), std::string::npos)
+    EXPECT_NE(std::string(e.what()).find("calib.txt: line 1: expected 4, 8 or 9 numbers"),
+              std::string::npos)
         << e.what();
   }
 }

@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <map>
+#include <opencv2/videoio.hpp>
 #include <random>
 
 #include "evkit/base/error.h"
@@ -12,15 +13,14 @@
 #include "evkit/events/image_io.h"
 #include "test_util.h"
 
-#include <opencv2/videoio.hpp>
-
 namespace evkit {
 namespace {
 
 constexpr int64_t kEpoch = 1605537493000000;  // absolute Unix µs
 
 // A frame whose log intensity (shared mapping) is `L` everywhere... per pixel via a function.
-cv::Mat frameFromLog(int w, int h, const std::function<double(int, int)>& L, const LogMapping& m = {}) {
+cv::Mat frameFromLog(int w, int h, const std::function<double(int, int)>& L,
+                     const LogMapping& m = {}) {
   cv::Mat img(h, w, CV_32F);
   for (int y = 0; y < h; ++y) {
     for (int x = 0; x < w; ++x) img.at<float>(y, x) = m.fromLog(static_cast<float>(L(x, y)));
@@ -53,7 +53,8 @@ EventStore run(const std::vector<cv::Mat>& video, const SimulatorOptions& o, int
   EventSimulator local(size, o);
   EventSimulator& sim = keep ? *keep : local;
   EventStore out(size);
-  for (size_t f = 0; f < video.size(); ++f) sim.addFrame(video[f], t0 + static_cast<int64_t>(f) * dt, out);
+  for (size_t f = 0; f < video.size(); ++f)
+    sim.addFrame(video[f], t0 + static_cast<int64_t>(f) * dt, out);
   return out;
 }
 
@@ -71,12 +72,14 @@ TEST(Simulator, ExactRampGivesTheExpectedEventsAtTheExpectedTimes) {
     const EventStore ev = run(video, o, kEpoch, 1100 / (frames - 1), nullptr);
     ASSERT_EQ(ev.size(), 5u) << frames << " frames";
     for (size_t k = 0; k < 5; ++k) {
-      EXPECT_EQ(ev.t[k], kEpoch + 200 * static_cast<int64_t>(k + 1)) << frames << " frames, event " << k;
+      EXPECT_EQ(ev.t[k], kEpoch + 200 * static_cast<int64_t>(k + 1))
+          << frames << " frames, event " << k;
       EXPECT_EQ(ev.p[k], 1);
     }
   }
   // Falling: OFF events.
-  std::vector<cv::Mat> down = {frameFromLog(1, 1, [](int, int) { return -1.0; }), frameFromLog(1, 1, [](int, int) { return -1.45; })};
+  std::vector<cv::Mat> down = {frameFromLog(1, 1, [](int, int) { return -1.0; }),
+                               frameFromLog(1, 1, [](int, int) { return -1.45; })};
   const EventStore off = run(down, o, 0, 450, nullptr);
   EXPECT_EQ(off.p, (std::vector<int8_t>{-1, -1}));
   EXPECT_EQ(off.t, (std::vector<int64_t>{200, 400}));
@@ -105,12 +108,14 @@ TEST(Simulator, EsimInvariantHoldsForEveryPixelAfterEveryFrame) {
     if (f == 0) L0 = sim.logIntensity();
     validate(ev.view(), "simulated");
     for (size_t e = 0; e < ev.size(); ++e) {
-      sum[static_cast<size_t>(ev.y[e] * 40 + ev.x[e])] += ev.p[e] > 0 ? o.contrast_pos : -o.contrast_neg;
+      sum[static_cast<size_t>(ev.y[e] * 40 + ev.x[e])] +=
+          ev.p[e] > 0 ? o.contrast_pos : -o.contrast_neg;
     }
     const std::vector<float>& L = sim.logIntensity();
     for (size_t i = 0; i < sum.size(); ++i) {
       const double residual = L0[i] + sum[i] - L[i];
-      ASSERT_LE(std::abs(residual), std::max(o.contrast_pos, o.contrast_neg) + 1e-5) << "pixel " << i << " frame " << f;
+      ASSERT_LE(std::abs(residual), std::max(o.contrast_pos, o.contrast_neg) + 1e-5)
+          << "pixel " << i << " frame " << f;
     }
   }
 }
@@ -130,7 +135,8 @@ TEST(Simulator, ThresholdMismatchLeavesNoPixelSilent) {
 TEST(Simulator, RefractoryPeriodDropsExactlyTheEventsTooCloseToTheLastOne) {
   // Log intensity rising steeply: several events per 100 µs frame interval.
   std::vector<cv::Mat> video;
-  for (int f = 0; f <= 50; ++f) video.push_back(frameFromLog(2, 1, [&](int x, int) { return -3.0 + (0.33 + 0.1 * x) * f; }));
+  for (int f = 0; f <= 50; ++f)
+    video.push_back(frameFromLog(2, 1, [&](int x, int) { return -3.0 + (0.33 + 0.1 * x) * f; }));
   SimulatorOptions o;
   const EventStore free = run(video, o, 0, 100, nullptr);
   // The refractory rule applied to the free events: the reference moves for every crossing, so
@@ -203,7 +209,8 @@ TEST(BlurAccumulator, MeanOfLinearlyInterpolatedFramesOverTheExposure) {
   BlurAccumulator blur({{100, 700}, {0, 1000}, {500, 500}});
   std::vector<std::pair<BlurAccumulator::Exposure, cv::Mat>> done;
   for (int f = 0; f <= 4; ++f) {
-    for (auto& d : blur.addFrame(cv::Mat(1, 1, CV_32F, cv::Scalar(f / 4.0)), 250 * f)) done.push_back(d);
+    for (auto& d : blur.addFrame(cv::Mat(1, 1, CV_32F, cv::Scalar(f / 4.0)), 250 * f))
+      done.push_back(d);
   }
   ASSERT_EQ(done.size(), 3u);
   std::map<int64_t, float> mean;
@@ -215,8 +222,11 @@ TEST(BlurAccumulator, MeanOfLinearlyInterpolatedFramesOverTheExposure) {
 
 TEST(FrameSequence, ImageFolderWithTimestampsAndClearErrors) {
   test::ScratchDir dir;
-  for (int i = 0; i < 3; ++i) writeImageFile(dir / ("f" + std::to_string(i) + ".png"), cv::Mat(4, 5, CV_32F, cv::Scalar(0.1 * i + 0.1)), 16);
-  test::writeText(dir / "timestamps.txt", "1605537493000000 f0.png\n1605537493001000 f1.png\n1605537493002500 f2.png\n");
+  for (int i = 0; i < 3; ++i)
+    writeImageFile(dir / ("f" + std::to_string(i) + ".png"),
+                   cv::Mat(4, 5, CV_32F, cv::Scalar(0.1 * i + 0.1)), 16);
+  test::writeText(dir / "timestamps.txt",
+                  "1605537493000000 f0.png\n1605537493001000 f1.png\n1605537493002500 f2.png\n");
   auto seq = openFrameSequence(dir.path().string());
   EXPECT_EQ(seq->sensor(), (SensorSize{5, 4}));
   EXPECT_EQ(seq->timeOf(2), 1605537493002500);
@@ -234,7 +244,8 @@ TEST(FrameSequence, ImageFolderWithTimestampsAndClearErrors) {
     seq->next(f, t);
     FAIL();
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("missing.png: no such image file"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("missing.png: no such image file"), std::string::npos)
+        << e.what();
   }
   test::writeText(dir / "timestamps.txt", "0 f0.png\n0 f1.png\n");
   EXPECT_THROW(openFrameSequence(dir.path().string()), Error);
@@ -246,7 +257,8 @@ TEST(FrameSequence, VideoFileTimestampsFromTheFrameRate) {
   test::ScratchDir dir;
   const std::string path = dir / "bar.avi";
   {
-    cv::VideoWriter writer(path, cv::VideoWriter::fourcc('M', 'J', 'P', 'G'), 100.0, cv::Size(32, 16), true);
+    cv::VideoWriter writer(path, cv::VideoWriter::fourcc('M', 'J', 'P', 'G'), 100.0,
+                           cv::Size(32, 16), true);
     ASSERT_TRUE(writer.isOpened());
     for (int f = 0; f < 10; ++f) {
       cv::Mat img(16, 32, CV_8UC3, cv::Scalar(20, 20, 20));
@@ -261,13 +273,14 @@ TEST(FrameSequence, VideoFileTimestampsFromTheFrameRate) {
   EXPECT_EQ(seq->timeOf(3), kEpoch + 30000);
   DriverOptions d;
   size_t events = 0;
-  const SimulatorStats stats = simulateSequence(*seq, d, [&](const EventStore& e, const std::vector<Frame>&) {
-    EXPECT_NO_THROW(validate(e.view(), "video"));
-    if (!e.empty()) {
-      EXPECT_GE(e.t.front(), kEpoch);
-    }
-    events += e.size();
-  });
+  const SimulatorStats stats =
+      simulateSequence(*seq, d, [&](const EventStore& e, const std::vector<Frame>&) {
+        EXPECT_NO_THROW(validate(e.view(), "video"));
+        if (!e.empty()) {
+          EXPECT_GE(e.t.front(), kEpoch);
+        }
+        events += e.size();
+      });
   EXPECT_EQ(stats.frames, 10);
   EXPECT_GT(events, 200u);
   EXPECT_THROW(openFrameSequence(dir / "none.mp4"), Error);
@@ -293,7 +306,9 @@ class SweepingBar final : public RenderSource {
     cv::Mat img(16, 64, CV_32F);
     const double centre = 8.0 + 48.0 * static_cast<double>(t_us) / 100000.0;
     for (int y = 0; y < 16; ++y) {
-      for (int x = 0; x < 64; ++x) img.at<float>(y, x) = static_cast<float>(0.05 + 0.9 * std::exp(-0.5 * std::pow((x - centre) / 2.0, 2)));
+      for (int x = 0; x < 64; ++x)
+        img.at<float>(y, x) =
+            static_cast<float>(0.05 + 0.9 * std::exp(-0.5 * std::pow((x - centre) / 2.0, 2)));
     }
     return img;
   }
@@ -303,10 +318,11 @@ TEST(Simulator, AdaptiveSamplingNeverSkipsMoreThanAFractionOfC) {
   SweepingBar bar;
   DriverOptions options;
   size_t events = 0;
-  const SimulatorStats adaptive = simulateAdaptive(bar, 0, 100000, options, {}, [&](const EventStore& e, const std::vector<Frame>&) {
-    EXPECT_NO_THROW(validate(e.view(), "adaptive"));
-    events += e.size();
-  });
+  const SimulatorStats adaptive = simulateAdaptive(
+      bar, 0, 100000, options, {}, [&](const EventStore& e, const std::vector<Frame>&) {
+        EXPECT_NO_THROW(validate(e.view(), "adaptive"));
+        events += e.size();
+      });
   EXPECT_EQ(adaptive.max_fraction_over_c, 0.0);  // no pixel moved by C between samples
   EXPECT_GT(events, 1000u);
   // The same scene at 10 fixed frames is badly under-sampled, and the stats say so.

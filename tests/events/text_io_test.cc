@@ -14,7 +14,8 @@ using test::writeText;
 
 TEST(TextIo, ReadsRpgLinesWithHeaderAndBothPolarityConventions) {
   ScratchDir dir;
-  writeText(dir / "a.txt", "240 180\n0.000010 1 2 1\n0.000020 3 4 0\n0.5 239 179 -1\n1605537493.718345 0 0 +1\n");
+  writeText(dir / "a.txt",
+            "240 180\n0.000010 1 2 1\n0.000020 3 4 0\n0.5 239 179 -1\n1605537493.718345 0 0 +1\n");
   const Recording rec = readRecording(dir / "a.txt");
   EXPECT_EQ(rec.info.sensor, (SensorSize{240, 180}));
   EXPECT_EQ(rec.info.layout, "rpg-text");
@@ -26,7 +27,8 @@ TEST(TextIo, ReadsRpgLinesWithHeaderAndBothPolarityConventions) {
 
 TEST(TextIo, AcceptsTabsCommasCrlfCommentsBlankLinesAndNoFinalNewline) {
   ScratchDir dir;
-  writeText(dir / "b.txt", "# t x y p\r\n\r\n1.0\t5\t6\t1\r\n2.0,7,8,0\r\n  # comment\n3.5e+0 9 10 1");
+  writeText(dir / "b.txt",
+            "# t x y p\r\n\r\n1.0\t5\t6\t1\r\n2.0,7,8,0\r\n  # comment\n3.5e+0 9 10 1");
   const Recording rec = readRecording(dir / "b.txt");
   ASSERT_EQ(rec.events.size(), 3u);
   EXPECT_EQ(rec.events.t[0], 1000000);
@@ -44,7 +46,8 @@ TEST(TextIo, WriterKeepsMicrosecondsAndHeader) {
   rec.events.push_back(1605537493718345, 345, 259, 1);
   rec.events.push_back(1605537493718346, 0, 0, -1);
   writeRecording(dir / "c.txt", rec);
-  EXPECT_EQ(test::readText(dir / "c.txt"), "346 260\n1605537493.718345 345 259 1\n1605537493.718346 0 0 0\n");
+  EXPECT_EQ(test::readText(dir / "c.txt"),
+            "346 260\n1605537493.718345 345 259 1\n1605537493.718346 0 0 0\n");
 }
 
 TEST(TextIo, ChunkedReadingEqualsWholeReadingAcrossBufferBoundaries) {

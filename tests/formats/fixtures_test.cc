@@ -9,9 +9,10 @@
 namespace evkit {
 namespace {
 
-#define REQUIRE_FIXTURE(var, name)                                                              \
-  const std::string var = test::fixture(name);                                                  \
-  if (var.empty()) GTEST_SKIP() << "fixture " << name << " not found (../shared/fixtures/real is absent)"
+#define REQUIRE_FIXTURE(var, name)             \
+  const std::string var = test::fixture(name); \
+  if (var.empty())                             \
+  GTEST_SKIP() << "fixture " << name << " not found (../shared/fixtures/real is absent)"
 
 int64_t countOn(const EventStore& e) { return e.countOn(); }
 
@@ -95,7 +96,8 @@ TEST(Fixtures, Davis346HeaderOnlyAedat2) {
 }
 
 // Facts of the Prophesee fixtures, read here with an independent numpy decoder of the EVT 2.0 and
-// DAT specifications (numpy.frombuffer over the words, by the bit layouts in events/src/prophesee.cc).
+// DAT specifications (numpy.frombuffer over the words, by the bit layouts in
+// events/src/prophesee.cc).
 TEST(Fixtures, PropheseeGen3Evt2) {
   REQUIRE_FIXTURE(path, "prophesee_gen3_evt2.raw");
   const Recording rec = readRecording(path);

@@ -19,11 +19,26 @@ using test::ScratchDir;
 
 struct Bytes {
   std::string data;
-  Bytes& str(const std::string& s) { data += s; return *this; }
-  Bytes& be32(uint32_t v) { for (int i = 3; i >= 0; --i) data += static_cast<char>(v >> (8 * i)); return *this; }
-  Bytes& le16(uint16_t v) { for (int i = 0; i < 2; ++i) data += static_cast<char>(v >> (8 * i)); return *this; }
-  Bytes& le32(uint32_t v) { for (int i = 0; i < 4; ++i) data += static_cast<char>(v >> (8 * i)); return *this; }
-  Bytes& raw(const void* p, size_t n) { data.append(static_cast<const char*>(p), n); return *this; }
+  Bytes& str(const std::string& s) {
+    data += s;
+    return *this;
+  }
+  Bytes& be32(uint32_t v) {
+    for (int i = 3; i >= 0; --i) data += static_cast<char>(v >> (8 * i));
+    return *this;
+  }
+  Bytes& le16(uint16_t v) {
+    for (int i = 0; i < 2; ++i) data += static_cast<char>(v >> (8 * i));
+    return *this;
+  }
+  Bytes& le32(uint32_t v) {
+    for (int i = 0; i < 4; ++i) data += static_cast<char>(v >> (8 * i));
+    return *this;
+  }
+  Bytes& raw(const void* p, size_t n) {
+    data.append(static_cast<const char*>(p), n);
+    return *this;
+  }
   void save(const std::string& path) const { test::writeText(path, data); }
 };
 
@@ -34,20 +49,24 @@ uint32_t davisDvs(int x, int y, bool on) {  // top-left coordinates -> jAER raw 
   return (uint32_t(kH240 - 1 - y) << 22) | (uint32_t(kW240 - 1 - x) << 12) | (uint32_t(on) << 11);
 }
 uint32_t davisAps(int x, int y, int type, int value) {  // APS x is not mirrored
-  return 0x80000000u | (uint32_t(kH240 - 1 - y) << 22) | (uint32_t(x) << 12) | (uint32_t(type) << 10) | uint32_t(value);
+  return 0x80000000u | (uint32_t(kH240 - 1 - y) << 22) | (uint32_t(x) << 12) |
+         (uint32_t(type) << 10) | uint32_t(value);
 }
 
 TEST(Aedat2Spec, DvsEventsApsFrameAndImuWords) {
   ScratchDir dir;
   Bytes b;
-  b.str("#!AER-DAT2.0\r\n# This is a raw AE data file\r\n# AEChip: eu.seebetter.ini.chips.davis.DAVIS240C\r\n");
+  b.str(
+      "#!AER-DAT2.0\r\n# This is a raw AE data file\r\n# AEChip: "
+      "eu.seebetter.ini.chips.davis.DAVIS240C\r\n");
   b.be32(davisDvs(0, 0, true)).be32(100);
   b.be32(davisDvs(239, 179, false)).be32(150);
   b.be32(0x80000C00u | 0x1234).be32(160);  // IMU word: skipped
   // One global-shutter frame: reset reads at t = 1000 + i, then signal reads from t = 60000.
   int64_t t = 1000;
   for (int y = 0; y < kH240; ++y) {
-    for (int x = 0; x < kW240; ++x) b.be32(davisAps(x, y, 0, 1000)).be32(static_cast<uint32_t>(t++));
+    for (int x = 0; x < kW240; ++x)
+      b.be32(davisAps(x, y, 0, 1000)).be32(static_cast<uint32_t>(t++));
   }
   const int64_t last_reset = t - 1;
   b.be32(davisDvs(5, 6, true)).be32(50000);  // DVS events interleave with the readout
@@ -79,7 +98,8 @@ TEST(Aedat2Spec, DvsEventsApsFrameAndImuWords) {
   EXPECT_FLOAT_EQ(f.image.at<float>(3, 10), 16.0f / 1023);
   EXPECT_FLOAT_EQ(f.image.at<float>(179, 239), (239.0f + 358.0f) / 1023);
   ASSERT_EQ(rec.info.warnings.size(), 1u);
-  EXPECT_NE(rec.info.warnings[0].find("last record is cut off (3 bytes ignored)"), std::string::npos);
+  EXPECT_NE(rec.info.warnings[0].find("last record is cut off (3 bytes ignored)"),
+            std::string::npos);
 }
 
 TEST(Aedat2Spec, TimestampWrapAndOutOfOrderEvents) {
@@ -101,7 +121,8 @@ TEST(Aedat2Spec, TimestampWrapAndOutOfOrderEvents) {
     readRecording(dir / "back.aedat");
     FAIL();
   } catch (const Error& e) {
-    const std::string expected = "byte " + std::to_string(back.data.size() - 8) + ": DVS timestamp 4000 us goes back in time";
+    const std::string expected = "byte " + std::to_string(back.data.size() - 8) +
+                                 ": DVS timestamp 4000 us goes back in time";
     EXPECT_NE(std::string(e.what()).find(expected), std::string::npos) << e.what();
   }
 }
@@ -109,13 +130,21 @@ TEST(Aedat2Spec, TimestampWrapAndOutOfOrderEvents) {
 // ---- AEDAT 3.1 (libcaer) ------------------------------------------------------------------------
 Bytes aedat31Header(const std::string& source) {
   Bytes b;
-  b.str("#!AER-DAT3.1\r\n#Format: RAW\r\n#Source 1: " + source + "\r\n#Start-Time: 2024-01-01\r\n#!END-HEADER\r\n");
+  b.str("#!AER-DAT3.1\r\n#Format: RAW\r\n#Source 1: " + source +
+        "\r\n#Start-Time: 2024-01-01\r\n#!END-HEADER\r\n");
   return b;
 }
 
-void packetHeader(Bytes& b, int16_t type, int32_t size, int32_t ts_offset, int32_t overflow, int32_t n) {
-  b.le16(static_cast<uint16_t>(type)).le16(1).le32(static_cast<uint32_t>(size)).le32(static_cast<uint32_t>(ts_offset));
-  b.le32(static_cast<uint32_t>(overflow)).le32(static_cast<uint32_t>(n)).le32(static_cast<uint32_t>(n)).le32(static_cast<uint32_t>(n));
+void packetHeader(Bytes& b, int16_t type, int32_t size, int32_t ts_offset, int32_t overflow,
+                  int32_t n) {
+  b.le16(static_cast<uint16_t>(type))
+      .le16(1)
+      .le32(static_cast<uint32_t>(size))
+      .le32(static_cast<uint32_t>(ts_offset));
+  b.le32(static_cast<uint32_t>(overflow))
+      .le32(static_cast<uint32_t>(n))
+      .le32(static_cast<uint32_t>(n))
+      .le32(static_cast<uint32_t>(n));
 }
 
 uint32_t polarity31(int x, int y, bool on, bool valid = true) {
@@ -136,8 +165,9 @@ TEST(Aedat31Spec, PolarityPacketsWithOverflowFramesWithRoiAndUnknownPackets) {
   packetHeader(b, 2, 36 + 2 * w * h * c, 12, 0, 1);
   b.le32((uint32_t(c) << 1) | 1).le32(900).le32(1600).le32(1000).le32(1500);
   b.le32(w).le32(h).le32(10).le32(20);
-  for (int i = 0; i < w * h; ++i) b.le16(static_cast<uint16_t>(1000 * i)).le16(65535).le16(0);  // R, G, B
-  packetHeader(b, 1, 8, 4, 1, 1);  // overflow 1: t = 2^31 + 5
+  for (int i = 0; i < w * h; ++i)
+    b.le16(static_cast<uint16_t>(1000 * i)).le16(65535).le16(0);  // R, G, B
+  packetHeader(b, 1, 8, 4, 1, 1);                                 // overflow 1: t = 2^31 + 5
   b.le32(polarity31(1, 2, true)).le32(5);
   b.save(dir / "f.aedat");
 
@@ -153,7 +183,7 @@ TEST(Aedat31Spec, PolarityPacketsWithOverflowFramesWithRoiAndUnknownPackets) {
   EXPECT_EQ(f.exposure_start_us, 1000);
   EXPECT_EQ(f.exposure_end_us, 1500);
   EXPECT_EQ(f.bit_depth, 16);
-  ASSERT_EQ(f.image.size(), cv::Size(346, 260));  // the ROI placed in the sensor
+  ASSERT_EQ(f.image.size(), cv::Size(346, 260));       // the ROI placed in the sensor
   const cv::Vec3f px = f.image.at<cv::Vec3f>(21, 13);  // pixel i = 7 of the ROI, BGR in memory
   EXPECT_FLOAT_EQ(px[0], 0.0f);
   EXPECT_FLOAT_EQ(px[1], 1.0f);
@@ -170,11 +200,13 @@ TEST(Aedat31Spec, PacketClaimingMoreThanTheFileIsAnErrorNotAnAllocation) {
     readRecording(dir / "huge.aedat");
     FAIL();
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("runs past the end of the file"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("runs past the end of the file"), std::string::npos)
+        << e.what();
   }
 }
 
-// ---- AEDAT 4.0 ------------------------------------------------------------------------------------
+// ---- AEDAT 4.0
+// ------------------------------------------------------------------------------------
 Recording recordingWithFrames(int channels, int bits) {
   RandomEventOptions o;
   o.count = 100000;
@@ -196,16 +228,18 @@ Recording recordingWithFrames(int channels, int bits) {
 TEST(Aedat4, WrittenFilesReadBackIdenticallyForEveryCompressionAndFrameFormat) {
   ScratchDir dir;
   for (Compression c : {Compression::kLz4, Compression::kZstd, Compression::kNone}) {
-    for (const auto& [channels, bits] : std::vector<std::pair<int, int>>{{1, 8}, {1, 16}, {3, 8}, {3, 16}}) {
+    for (const auto& [channels, bits] :
+         std::vector<std::pair<int, int>>{{1, 8}, {1, 16}, {3, 8}, {3, 16}}) {
       const Recording rec = recordingWithFrames(channels, bits);
       WriterOptions options;
       options.compression = c;
-      const std::string path = dir / ("r_" + compressionName(c) + std::to_string(channels) + std::to_string(bits) + ".aedat4");
+      const std::string path = dir / ("r_" + compressionName(c) + std::to_string(channels) +
+                                      std::to_string(bits) + ".aedat4");
       writeRecording(path, rec, std::nullopt, options);
       const Recording back = readRecording(path);
       EXPECT_EQ(back.info.sensor, (SensorSize{346, 260}));
-      EXPECT_TRUE(back.events.t == rec.events.t && back.events.x == rec.events.x && back.events.y == rec.events.y &&
-                  back.events.p == rec.events.p);
+      EXPECT_TRUE(back.events.t == rec.events.t && back.events.x == rec.events.x &&
+                  back.events.y == rec.events.y && back.events.p == rec.events.p);
       ASSERT_EQ(back.frames.size(), 3u);
       for (size_t i = 0; i < 3; ++i) {
         EXPECT_EQ(back.frames[i].exposure_start_us, rec.frames[i].exposure_start_us);
@@ -235,11 +269,15 @@ TEST(Aedat4, FrameWithoutExposureFieldsUsesTimestampPlusExposure) {
   ScratchDir dir;
   const std::string xml =
       "<dv version=\"2.0\"><node name=\"outInfo\" path=\"/mainloop/Recorder/outInfo/\">"
-      "<node name=\"3\" path=\"/mainloop/Recorder/outInfo/3/\"><attr key=\"typeIdentifier\" type=\"string\">FRME</attr>"
-      "<node name=\"info\" path=\"/mainloop/Recorder/outInfo/3/info/\"><attr key=\"sizeX\" type=\"int\">4</attr>"
+      "<node name=\"3\" path=\"/mainloop/Recorder/outInfo/3/\"><attr key=\"typeIdentifier\" "
+      "type=\"string\">FRME</attr>"
+      "<node name=\"info\" path=\"/mainloop/Recorder/outInfo/3/info/\"><attr key=\"sizeX\" "
+      "type=\"int\">4</attr>"
       "<attr key=\"sizeY\" type=\"int\">2</attr></node></node></node></dv>";
   flatbuffers::FlatBufferBuilder header;
-  header.FinishSizePrefixed(aedat4::CreateIOHeader(header, aedat4::CompressionType::NONE, -1, header.CreateString(xml)), "IOHE");
+  header.FinishSizePrefixed(
+      aedat4::CreateIOHeader(header, aedat4::CompressionType::NONE, -1, header.CreateString(xml)),
+      "IOHE");
   flatbuffers::FlatBufferBuilder frame;
   const std::vector<uint8_t> pixels = {0, 51, 102, 153, 204, 255, 0, 0};
   const auto px = frame.CreateVector(pixels);
@@ -265,20 +303,21 @@ TEST(Aedat4, FrameWithoutExposureFieldsUsesTimestampPlusExposure) {
   EXPECT_THROW(readRecording(dir / "g.aedat4"), Error);
 }
 
-// ---- Prophesee ------------------------------------------------------------------------------------
+// ---- Prophesee
+// ------------------------------------------------------------------------------------
 TEST(Prophesee, Evt3VectorsAndTimeWords) {
   ScratchDir dir;
   Bytes b;
   b.str("% evt 3.0\n% format EVT3;height=720;width=1280\n% end\n");
-  b.le16(0x8000 | 1);         // TIME_HIGH = 1
-  b.le16(0x6000 | 5);         // TIME_LOW = 5 -> t = 4096 + 5
-  b.le16(0x0000 | 10);        // ADDR_Y = 10
-  b.le16(0x2000 | 0x800 | 3); // ADDR_X = 3, ON
-  b.le16(0x3000 | 100);       // VECT_BASE_X = 100, OFF
-  b.le16(0x4000 | 0x005);     // VECT_12: bits 0, 2 -> x 100, 102; base -> 112
-  b.le16(0x5000 | 0x80);      // VECT_8: bit 7 -> x 119; base -> 120
-  b.le16(0x6000 | 9);         // TIME_LOW = 9
-  b.le16(0x2000 | 1279);      // ADDR_X = 1279, OFF
+  b.le16(0x8000 | 1);          // TIME_HIGH = 1
+  b.le16(0x6000 | 5);          // TIME_LOW = 5 -> t = 4096 + 5
+  b.le16(0x0000 | 10);         // ADDR_Y = 10
+  b.le16(0x2000 | 0x800 | 3);  // ADDR_X = 3, ON
+  b.le16(0x3000 | 100);        // VECT_BASE_X = 100, OFF
+  b.le16(0x4000 | 0x005);      // VECT_12: bits 0, 2 -> x 100, 102; base -> 112
+  b.le16(0x5000 | 0x80);       // VECT_8: bit 7 -> x 119; base -> 120
+  b.le16(0x6000 | 9);          // TIME_LOW = 9
+  b.le16(0x2000 | 1279);       // ADDR_X = 1279, OFF
   b.save(dir / "a.raw");
   const Recording rec = readRecording(dir / "a.raw");
   EXPECT_EQ(rec.info.format, Format::kEvt3);
@@ -293,9 +332,9 @@ TEST(Prophesee, Evt2TimeHighAndDatRecords) {
   ScratchDir dir;
   Bytes e;
   e.str("% evt 2.0\n% geometry 640x480\n% end\n");
-  e.le32(0x10000000u | (7u << 11) | 9u);                 // CD ON before any time base: dropped
-  e.le32(0x80000000u | 10u);                             // TIME_HIGH 10
-  e.le32(0x10000000u | (5u << 22) | (7u << 11) | 9u);    // ON, t = 10 << 6 | 5
+  e.le32(0x10000000u | (7u << 11) | 9u);                   // CD ON before any time base: dropped
+  e.le32(0x80000000u | 10u);                               // TIME_HIGH 10
+  e.le32(0x10000000u | (5u << 22) | (7u << 11) | 9u);      // ON, t = 10 << 6 | 5
   e.le32(0x00000000u | (6u << 22) | (639u << 11) | 479u);  // OFF at the far corner
   e.save(dir / "b.raw");
   const Recording evt2 = readRecording(dir / "b.raw");

@@ -47,7 +47,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   }
   const int descriptors_after = evkit::test::openDescriptors();
   if (descriptors_after != descriptors_before) {
-    std::fprintf(stderr, "fuzz: %d file descriptors open before reading, %d after: the reader leaked\n",
+    std::fprintf(stderr,
+                 "fuzz: %d file descriptors open before reading, %d after: the reader leaked\n",
                  descriptors_before, descriptors_after);
     std::abort();
   }

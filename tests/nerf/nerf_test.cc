@@ -22,7 +22,9 @@ using MatrixD = Eigen::MatrixXd;
 constexpr double kEps = 1e-6;
 constexpr double kTol = 1e-6;  // relative, against central differences in double
 
-Eigen::VectorXd flat(const MatrixD& m) { return Eigen::Map<const Eigen::VectorXd>(m.data(), m.size()); }
+Eigen::VectorXd flat(const MatrixD& m) {
+  return Eigen::Map<const Eigen::VectorXd>(m.data(), m.size());
+}
 
 TEST(VolumeRender, BackwardAgainstCentralDifferences) {
   std::mt19937_64 rng(1);
@@ -31,25 +33,30 @@ TEST(VolumeRender, BackwardAgainstCentralDifferences) {
     for (double scale : {0.1, 3.0, 40.0}) {
       const size_t n = 12;
       Eigen::VectorXd x(static_cast<Eigen::Index>(n * (1 + channels)));  // sigma then colours
-      for (Eigen::Index i = 0; i < x.size(); ++i) x(i) = i < static_cast<Eigen::Index>(n) ? scale * u(rng) : u(rng);
+      for (Eigen::Index i = 0; i < x.size(); ++i)
+        x(i) = i < static_cast<Eigen::Index>(n) ? scale * u(rng) : u(rng);
       std::vector<double> delta(n);
       for (double& d : delta) d = 0.05 + 0.1 * u(rng);
       RenderSettings s;
       s.early_stop = 0;  // every sample contributes, so that every derivative is exercised
       s.background = 0.3f;
       const auto f = [&](const Eigen::VectorXd& v) -> Eigen::VectorXd {
-        const RayRender<double> r = renderRay(v.data(), v.data() + n, delta.data(), static_cast<const double*>(nullptr), n, channels, s);
+        const RayRender<double> r = renderRay(v.data(), v.data() + n, delta.data(),
+                                              static_cast<const double*>(nullptr), n, channels, s);
         return Eigen::Map<const Eigen::VectorXd>(r.colour, channels);
       };
-      const RayRender<double> fwd = renderRay(x.data(), x.data() + n, delta.data(), static_cast<const double*>(nullptr), n, channels, s);
+      const RayRender<double> fwd = renderRay(x.data(), x.data() + n, delta.data(),
+                                              static_cast<const double*>(nullptr), n, channels, s);
       MatrixD J(channels, x.size());
       for (int c = 0; c < channels; ++c) {
         double dc[3] = {0, 0, 0};
         dc[c] = 1;
         std::vector<double> ds(n), dcol(n * static_cast<size_t>(channels));
-        renderRayBackward(x.data(), x.data() + n, delta.data(), n, channels, s, fwd, dc, ds.data(), dcol.data());
+        renderRayBackward(x.data(), x.data() + n, delta.data(), n, channels, s, fwd, dc, ds.data(),
+                          dcol.data());
         for (size_t j = 0; j < n; ++j) J(c, static_cast<Eigen::Index>(j)) = ds[j];
-        for (size_t j = 0; j < n * static_cast<size_t>(channels); ++j) J(c, static_cast<Eigen::Index>(n + j)) = dcol[j];
+        for (size_t j = 0; j < n * static_cast<size_t>(channels); ++j)
+          J(c, static_cast<Eigen::Index>(n + j)) = dcol[j];
       }
       test::expectJacobianNear("render, scale " + std::to_string(scale), J, f, x, kEps, kTol);
     }
@@ -57,19 +64,23 @@ TEST(VolumeRender, BackwardAgainstCentralDifferences) {
 }
 
 TEST(VolumeRender, NoNanWithHugeDensitiesEmptyRaysOrBadInputs) {
-  const double huge[4] = {1e30, 1e300, 0, 5}, colours[4] = {0.5, 0.2, 0.7, 0.1}, delta[4] = {1, 1, 1, 1};
+  const double huge[4] = {1e30, 1e300, 0, 5}, colours[4] = {0.5, 0.2, 0.7, 0.1},
+               delta[4] = {1, 1, 1, 1};
   RenderSettings s;
-  const RayRender<double> r = renderRay(huge, colours, delta, static_cast<const double*>(nullptr), 4, 1, s);
+  const RayRender<double> r =
+      renderRay(huge, colours, delta, static_cast<const double*>(nullptr), 4, 1, s);
   EXPECT_NEAR(r.colour[0], 0.5, 1e-12);  // the first sample is opaque
-  EXPECT_EQ(r.used, 1u);                  // and stops the march
+  EXPECT_EQ(r.used, 1u);                 // and stops the march
   double ds[4], dc[4];
   const double g = 1;
   renderRayBackward(huge, colours, delta, 4, 1, s, r, &g, ds, dc);
   for (double v : ds) EXPECT_TRUE(std::isfinite(v));
-  const RayRender<double> empty = renderRay(huge, colours, delta, static_cast<const double*>(nullptr), 0, 1, s);
+  const RayRender<double> empty =
+      renderRay(huge, colours, delta, static_cast<const double*>(nullptr), 0, 1, s);
   EXPECT_EQ(empty.colour[0], 0.0);
   const double bad[3] = {NAN, -1, INFINITY}, badc[3] = {NAN, 0.5, 0.5}, d3[3] = {1, 1, 1};
-  const RayRender<double> b = renderRay(bad, badc, d3, static_cast<const double*>(nullptr), 3, 1, s);
+  const RayRender<double> b =
+      renderRay(bad, badc, d3, static_cast<const double*>(nullptr), 3, 1, s);
   EXPECT_TRUE(std::isfinite(b.colour[0]));
   double ds3[3], dc3[3];
   renderRayBackward(bad, badc, d3, 3, 1, s, b, &g, ds3, dc3);
@@ -95,7 +106,8 @@ TEST(Mlp, BackwardAgainstCentralDifferencesWithSkip) {
   test::expectJacobianNear("mlp parameters", grad.transpose(), loss_of_params, params, kEps, kTol);
   const auto loss_of_input = [&](const Eigen::VectorXd& v) -> Eigen::VectorXd {
     Mlp<double> m = mlp;
-    return Eigen::VectorXd::Constant(1, (w.array() * m.forward(Eigen::Map<const MatrixD>(v.data(), 4, 5)).array()).sum());
+    return Eigen::VectorXd::Constant(
+        1, (w.array() * m.forward(Eigen::Map<const MatrixD>(v.data(), 4, 5)).array()).sum());
   };
   test::expectJacobianNear("mlp input", flat(dx).transpose(), loss_of_input, flat(x), kEps, kTol);
 }
@@ -105,7 +117,10 @@ TEST(PositionalEncoding, BackwardAgainstCentralDifferences) {
   const MatrixD w = MatrixD::Random(3 * (1 + 2 * 6), 4);
   const MatrixD dp = positionalEncodingBackward(p, 6, w);
   const auto f = [&](const Eigen::VectorXd& v) -> Eigen::VectorXd {
-    return Eigen::VectorXd::Constant(1, (w.array() * positionalEncoding(MatrixD(Eigen::Map<const MatrixD>(v.data(), 3, 4)), 6).array()).sum());
+    return Eigen::VectorXd::Constant(
+        1, (w.array() *
+            positionalEncoding(MatrixD(Eigen::Map<const MatrixD>(v.data(), 3, 4)), 6).array())
+               .sum());
   };
   test::expectJacobianNear("positional encoding", flat(dp).transpose(), f, flat(p), kEps, kTol);
 }
@@ -121,7 +136,8 @@ TEST_P(HashGridFeatures, BackwardToTableAndPositionsAgainstCentralDifferences) {
   c.base_resolution = 2;
   c.per_level_scale = 2.0;
   HashGrid<double> grid(c, 3);
-  for (double& v : grid.table()) v *= 1e4;  // O(1) features, so that position gradients are not tiny
+  for (double& v : grid.table())
+    v *= 1e4;  // O(1) features, so that position gradients are not tiny
   MatrixD x = (MatrixD::Random(3, 6).array() * 0.45 + 0.5).matrix();
   const MatrixD w = MatrixD::Random(grid.outputSize(), 6);
   grid.zeroGradients();
@@ -129,21 +145,26 @@ TEST_P(HashGridFeatures, BackwardToTableAndPositionsAgainstCentralDifferences) {
   const MatrixD dx = grid.backward(w);
   const auto of_positions = [&](const Eigen::VectorXd& v) -> Eigen::VectorXd {
     HashGrid<double> g = grid;
-    return Eigen::VectorXd::Constant(1, (w.array() * g.forward(Eigen::Map<const MatrixD>(v.data(), 3, 6)).array()).sum());
+    return Eigen::VectorXd::Constant(
+        1, (w.array() * g.forward(Eigen::Map<const MatrixD>(v.data(), 3, 6)).array()).sum());
   };
-  test::expectJacobianNear("hash grid positions", flat(dx).transpose(), of_positions, flat(x), 1e-7, 1e-5);
-  const Eigen::VectorXd table = Eigen::Map<const Eigen::VectorXd>(grid.table().data(), static_cast<Eigen::Index>(grid.table().size()));
+  test::expectJacobianNear("hash grid positions", flat(dx).transpose(), of_positions, flat(x), 1e-7,
+                           1e-5);
+  const Eigen::VectorXd table = Eigen::Map<const Eigen::VectorXd>(
+      grid.table().data(), static_cast<Eigen::Index>(grid.table().size()));
   const auto of_table = [&](const Eigen::VectorXd& v) -> Eigen::VectorXd {
     HashGrid<double> g = grid;
     std::copy(v.data(), v.data() + v.size(), g.table().begin());
     return Eigen::VectorXd::Constant(1, (w.array() * g.forward(x).array()).sum());
   };
-  const Eigen::VectorXd grad = Eigen::Map<const Eigen::VectorXd>(grid.gradients().data(), static_cast<Eigen::Index>(grid.gradients().size()));
+  const Eigen::VectorXd grad = Eigen::Map<const Eigen::VectorXd>(
+      grid.gradients().data(), static_cast<Eigen::Index>(grid.gradients().size()));
   test::expectJacobianNear("hash grid table", grad.transpose(), of_table, table, kEps, kTol);
   // Entries with gradient are exactly the touched ones.
   for (size_t e = 0; e < grid.touched().size(); ++e) {
     bool nonzero = false;
-    for (int j = 0; j < c.features; ++j) nonzero |= grad(static_cast<Eigen::Index>(e) * c.features + j) != 0;
+    for (int j = 0; j < c.features; ++j)
+      nonzero |= grad(static_cast<Eigen::Index>(e) * c.features + j) != 0;
     if (nonzero) {
       EXPECT_TRUE(grid.touched()[e]) << e;
     }
@@ -169,7 +190,8 @@ void checkField(RadianceField<double>& field, const std::string& name) {
   field.forward(p);
   const MatrixD dp = field.backward(w);
   const auto f = [&](const Eigen::VectorXd& v) -> Eigen::VectorXd {
-    return Eigen::VectorXd::Constant(1, (w.array() * field.forward(Eigen::Map<const MatrixD>(v.data(), 3, n)).array()).sum());
+    return Eigen::VectorXd::Constant(
+        1, (w.array() * field.forward(Eigen::Map<const MatrixD>(v.data(), 3, n)).array()).sum());
   };
   test::expectJacobianNear(name + " positions", flat(dp).transpose(), f, flat(p), kEps, 1e-5);
   // Parameters: a spread of entries of every block.
@@ -186,7 +208,8 @@ void checkField(RadianceField<double>& field, const std::string& name) {
       const double down = (w.array() * field.forward(p).array()).sum();
       b.values[i] = keep;
       const double numeric = (up - down) / (2 * kEps);
-      EXPECT_NEAR(b.gradients[i], numeric, 1e-5 * std::max(1.0, std::abs(numeric))) << name << " parameter " << i;
+      EXPECT_NEAR(b.gradients[i], numeric, 1e-5 * std::max(1.0, std::abs(numeric)))
+          << name << " parameter " << i;
     }
   }
 }
@@ -252,7 +275,8 @@ TEST(Fields, BandLimitWeightsTheEncodingAndItsGradients) {
   hash->forward(p);
   hash->backward(MatrixD::Ones(2, 16));
   double finest_gradient = 0;
-  for (size_t i = finest; i < table.size; ++i) finest_gradient = std::max(finest_gradient, std::abs(table.gradients[i]));
+  for (size_t i = finest; i < table.size; ++i)
+    finest_gradient = std::max(finest_gradient, std::abs(table.gradients[i]));
   EXPECT_EQ(finest_gradient, 0.0);
   for (size_t i = finest; i < table.size; ++i) table.values[i] -= 0.5;
   hash->setBandLimit(hash->bands());
@@ -278,7 +302,8 @@ TEST(Fields, HashFieldKernelsMatchEigensProducts) {
     for (size_t b = 0; b < pf.size(); ++b) {
       for (size_t i = 0; i < pf[b].size; ++i) {
         // O(1) features (as above) and non-zero biases.
-        pf[b].values[i] = pe[b].values[i] = b == 0 ? pf[b].values[i] * 1e4f : pf[b].values[i] + 0.1f * u(rng);
+        pf[b].values[i] = pe[b].values[i] =
+            b == 0 ? pf[b].values[i] * 1e4f : pf[b].values[i] + 0.1f * u(rng);
       }
     }
     const int n = 263;
@@ -289,12 +314,17 @@ TEST(Fields, HashFieldKernelsMatchEigensProducts) {
     eigen->zeroGradients();
     const Eigen::MatrixXf out_f = fast->forward(p), out_e = eigen->forward(p);
     const Eigen::MatrixXf dp_f = fast->backward(w), dp_e = eigen->backward(w);
-    EXPECT_LT((out_f - out_e).cwiseAbs().maxCoeff(), 1e-5f * std::max(1.0f, out_e.cwiseAbs().maxCoeff())) << channels;
-    EXPECT_LT((dp_f - dp_e).cwiseAbs().maxCoeff(), 1e-4f * std::max(1.0f, dp_e.cwiseAbs().maxCoeff())) << channels;
+    EXPECT_LT((out_f - out_e).cwiseAbs().maxCoeff(),
+              1e-5f * std::max(1.0f, out_e.cwiseAbs().maxCoeff()))
+        << channels;
+    EXPECT_LT((dp_f - dp_e).cwiseAbs().maxCoeff(),
+              1e-4f * std::max(1.0f, dp_e.cwiseAbs().maxCoeff()))
+        << channels;
     for (size_t b = 0; b < pf.size(); ++b) {
       float scale = 1, worst = 0;
       for (size_t i = 0; i < pf[b].size; ++i) scale = std::max(scale, std::abs(pe[b].gradients[i]));
-      for (size_t i = 0; i < pf[b].size; ++i) worst = std::max(worst, std::abs(pf[b].gradients[i] - pe[b].gradients[i]));
+      for (size_t i = 0; i < pf[b].size; ++i)
+        worst = std::max(worst, std::abs(pf[b].gradients[i] - pe[b].gradients[i]));
       EXPECT_LT(worst, 1e-4f * scale) << "block " << b << ", channels " << channels;
     }
   }
@@ -303,15 +333,19 @@ TEST(Fields, HashFieldKernelsMatchEigensProducts) {
 TEST(Camera, NdcPointPoseJacobianAgainstCentralDifferences) {
   PinholeCamera cam = PinholeCamera{60.0, 58.0, 31.5, 23.5, {}}.withSize(64, 48);
   const SE3 T(expSO3(Vector3(0.02, -0.03, 0.01)), Vector3(0.05, -0.02, 0.03));
-  for (const std::vector<double>& dist : {std::vector<double>{}, std::vector<double>{-0.2, 0.05, 0.001, -0.002}}) {
+  for (const std::vector<double>& dist :
+       {std::vector<double>{}, std::vector<double>{-0.2, 0.05, 0.001, -0.002}}) {
     cam.distortion = dist;
     for (double t : {0.0, 0.3, 0.9}) {
-      for (const auto& [u, v] : std::vector<std::pair<double, double>>{{3, 4}, {31.5, 23.5}, {60, 40}}) {
+      for (const auto& [u, v] :
+           std::vector<std::pair<double, double>>{{3, 4}, {31.5, 23.5}, {60, 40}}) {
         const auto f = [&](const Eigen::VectorXd& eps) -> Eigen::VectorXd {
           const NdcRay r = toNdc(worldRay(cam, T * expSE3(Vector6(eps)), u, v), cam, 1.0);
           return r.origin + t * r.direction;
         };
-        test::expectJacobianNear("ndc point, t " + std::to_string(t), ndcPointPoseJacobian(cam, T, u, v, t, 1.0), f, Vector6::Zero(), kEps, 1e-6);
+        test::expectJacobianNear("ndc point, t " + std::to_string(t),
+                                 ndcPointPoseJacobian(cam, T, u, v, t, 1.0), f, Vector6::Zero(),
+                                 kEps, 1e-6);
       }
     }
     // Distortion round trip: a pixel's direction projects back onto the pixel.
@@ -326,11 +360,13 @@ TEST(RayBatch, PoseGradientsAgainstCentralDifferences) {
   // sees it: dL/d pose (right perturbation) from backward() against central differences.
   const PinholeCamera cam = PinholeCamera{14.0, 13.0, 7.5, 5.5, {}}.withSize(16, 12);
   const auto field = tinyMlpField();
-  const std::vector<SE3> poses = {expSE3((Vector6() << 0.01, -0.02, 0.005, 0.03, -0.01, 0.02).finished()),
-                                  expSE3((Vector6() << -0.02, 0.01, 0.01, -0.02, 0.04, -0.01).finished())};
+  const std::vector<SE3> poses = {
+      expSE3((Vector6() << 0.01, -0.02, 0.005, 0.03, -0.01, 0.02).finished()),
+      expSE3((Vector6() << -0.02, 0.01, 0.01, -0.02, 0.04, -0.01).finished())};
   const RayBatchOptions options{.samples = 6, .near = 1.0, .depth_scale = 0.3, .render = {}};
   std::vector<RayBatch<double>::PixelRay> rays;
-  for (int r = 0; r < 10; ++r) rays.push_back({(3 * r + 1) % cam.width, (5 * r + 2) % cam.height, r % 2});
+  for (int r = 0; r < 10; ++r)
+    rays.push_back({(3 * r + 1) % cam.width, (5 * r + 2) % cam.height, r % 2});
   std::mt19937 rng(4);
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
   std::vector<float> jitter(rays.size() * 6);
@@ -343,7 +379,8 @@ TEST(RayBatch, PoseGradientsAgainstCentralDifferences) {
     batch.forward(*field, false);
     double l = 0;
     for (int r = 0; r < batch.size(); ++r) {
-      for (int c = 0; c < 3; ++c) l += weights[static_cast<size_t>(r) * 3 + c] * batch.render(r).colour[c];
+      for (int c = 0; c < 3; ++c)
+        l += weights[static_cast<size_t>(r) * 3 + c] * batch.render(r).colour[c];
     }
     return l;
   };
@@ -355,13 +392,14 @@ TEST(RayBatch, PoseGradientsAgainstCentralDifferences) {
   ASSERT_EQ(analytic.size(), 2u);
   for (size_t k = 0; k < poses.size(); ++k) {
     Eigen::MatrixXd a = analytic[k].transpose();
-    test::expectJacobianNear("pose " + std::to_string(k), a,
-                             [&](const Eigen::VectorXd& eps) {
-                               std::vector<SE3> at = poses;
-                               at[k] = poses[k] * expSE3(Vector6(eps));
-                               return Eigen::VectorXd::Constant(1, loss(at));
-                             },
-                             Eigen::VectorXd::Zero(6), 1e-6, 1e-5);
+    test::expectJacobianNear(
+        "pose " + std::to_string(k), a,
+        [&](const Eigen::VectorXd& eps) {
+          std::vector<SE3> at = poses;
+          at[k] = poses[k] * expSE3(Vector6(eps));
+          return Eigen::VectorXd::Constant(1, loss(at));
+        },
+        Eigen::VectorXd::Zero(6), 1e-6, 1e-5);
     EXPECT_GT(analytic[k].norm(), 1e-4) << "the check must see a gradient";
   }
 }
@@ -377,7 +415,8 @@ TEST(Sampling, ImportanceSamplesFollowTheWeights) {
   const std::vector<float> s = importanceSamples(t, w, u);
   ASSERT_EQ(s.size(), 64u);
   EXPECT_TRUE(std::is_sorted(s.begin(), s.end()));
-  const long inside = std::count_if(s.begin(), s.end(), [](float v) { return v >= 9 / 16.0f && v < 10 / 16.0f; });
+  const long inside =
+      std::count_if(s.begin(), s.end(), [](float v) { return v >= 9 / 16.0f && v < 10 / 16.0f; });
   EXPECT_GE(inside, 60);  // the floor leaves a few elsewhere
   // Uniform weights give evenly spread samples; NaN weights count as zero.
   std::vector<float> uniform(16, 1.0f);
@@ -441,7 +480,8 @@ TEST(Training, HashFieldFitsATinySceneAndIsDeterministicWithOneThread) {
   EXPECT_TRUE(cv::checkRange(rendered));
   // With importance samples on top of the coarse ones the fitted scene still renders well.
   const cv::Mat refined = renderImage(*field, cam, views[1].pose, 32, fo.near, {}, 32);
-  const double psnr_refined = -10 * std::log10(cv::norm(refined - views[1].image, cv::NORM_L2SQR) / (w * h));
+  const double psnr_refined =
+      -10 * std::log10(cv::norm(refined - views[1].image, cv::NORM_L2SQR) / (w * h));
   EXPECT_GT(psnr_refined, 22.0);
   FitOptions hierarchical = fo;
   hierarchical.steps = 60;

@@ -18,7 +18,8 @@ constexpr int64_t kT1 = kT0 + 200000;
 std::vector<SE3> wobblyKnots(int n) {
   std::vector<SE3> knots;
   for (int k = 0; k < n; ++k) {
-    knots.emplace_back(expSO3(Vector3(0.05 * std::sin(k), 0.08 * k, -0.03 * k * k)), Vector3(0.1 * k, 0.02 * k * k, std::cos(k)));
+    knots.emplace_back(expSO3(Vector3(0.05 * std::sin(k), 0.08 * k, -0.03 * k * k)),
+                       Vector3(0.1 * k, 0.02 * k * k, std::cos(k)));
   }
   return knots;
 }
@@ -30,14 +31,16 @@ std::vector<StampedPose> sample(const Trajectory& traj, int count) {
 }
 
 TEST(Fit, RecoversASplineFromItsOwnSamples) {
-  for (TrajectoryKind kind : {TrajectoryKind::kCubicSE3, TrajectoryKind::kCubicSplit, TrajectoryKind::kLinear}) {
+  for (TrajectoryKind kind :
+       {TrajectoryKind::kCubicSE3, TrajectoryKind::kCubicSplit, TrajectoryKind::kLinear}) {
     const Trajectory truth(kind, kT0, kT1, wobblyKnots(6));
     FitReport report;
     const Trajectory fit = fitTrajectory(kind, 6, kT0, kT1, sample(truth, 61), {}, &report);
     EXPECT_LT(report.final_rms, 1e-9) << trajectoryKindName(kind);
     EXPECT_LT(report.final_rms, report.initial_rms);
     for (double s : {0.0, 0.33, 0.5, 0.9, 1.0}) {
-      EXPECT_LT((fit.evaluate(s).matrix() - truth.evaluate(s).matrix()).cwiseAbs().maxCoeff(), 1e-8) << trajectoryKindName(kind);
+      EXPECT_LT((fit.evaluate(s).matrix() - truth.evaluate(s).matrix()).cwiseAbs().maxCoeff(), 1e-8)
+          << trajectoryKindName(kind);
     }
   }
 }
@@ -47,7 +50,8 @@ TEST(Fit, ApproximatesAMotionOfAnotherFamily) {
   std::vector<StampedPose> poses;
   for (int i = 0; i <= 40; ++i) {
     const double a = 0.5 * i / 40.0;
-    poses.push_back({kT0 + (kT1 - kT0) * i / 40, SE3(expSO3(Vector3(0, a, 0)), Vector3(std::sin(a), 0, 1 - std::cos(a)))});
+    poses.push_back({kT0 + (kT1 - kT0) * i / 40,
+                     SE3(expSO3(Vector3(0, a, 0)), Vector3(std::sin(a), 0, 1 - std::cos(a)))});
   }
   FitReport report;
   const Trajectory fit = fitTrajectory(TrajectoryKind::kCubicSE3, 4, kT0, kT1, poses, {}, &report);
@@ -86,7 +90,8 @@ TEST(Metrics, AlignmentRemovesSimilaritiesAndReportsWhatRemains) {
   EXPECT_NEAR(compareTrajectories(off, truth, Alignment::kSE3).ate_rmse, 0.0, 1e-9);
   // A rotation error of 2 degrees on every pose, no alignment.
   std::vector<SE3> rot;
-  for (const SE3& T : truth) rot.emplace_back(T.rotation() * expSO3(Vector3(0, 0, 2.0 * M_PI / 180)), T.translation());
+  for (const SE3& T : truth)
+    rot.emplace_back(T.rotation() * expSO3(Vector3(0, 0, 2.0 * M_PI / 180)), T.translation());
   EXPECT_NEAR(compareTrajectories(rot, truth, Alignment::kNone).rotation_rmse_deg, 2.0, 1e-9);
   EXPECT_THROW(compareTrajectories(rot, {}, Alignment::kNone), std::invalid_argument);
 }

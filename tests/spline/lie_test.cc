@@ -17,7 +17,8 @@ constexpr double kFdTol = 1e-8;  // central differences with eps 1e-6: O(eps^2) 
 constexpr double kFdEps = 1e-6;
 
 // The hard angles of the issue, and a few ordinary ones.
-const std::vector<double> kAngles = {0.0, 1e-12, 1e-8, 1e-5, 1e-3, 1e-2, 0.1, 0.5, 0.99, 1.01, 2.0, 3.0, kPi - 1e-9, kPi};
+const std::vector<double> kAngles = {0.0, 1e-12, 1e-8, 1e-5, 1e-3, 1e-2,       0.1,
+                                     0.5, 0.99,  1.01, 2.0,  3.0,  kPi - 1e-9, kPi};
 
 Vector3 randomAxis(std::mt19937_64& rng) {
   std::normal_distribution<double> n;
@@ -49,11 +50,15 @@ TEST(SO3, LogOfExpRecoversTheVectorAtHardAngles) {
       const Vector3 back = logSO3(expSO3(phi));
       if (theta < kPi - 1e-6) {
         // Relative to theta: the small vectors keep all their digits.
-        EXPECT_LE((back - phi).norm(), kTightTol * std::max(theta, 1e-300) + 1e-300) << "theta " << theta;
+        EXPECT_LE((back - phi).norm(), kTightTol * std::max(theta, 1e-300) + 1e-300)
+            << "theta " << theta;
       } else {
         // At pi, phi and -phi are the same rotation; near it, atan2 keeps the angle exact.
         EXPECT_NEAR(back.norm(), theta, 1e-12) << "theta " << theta;
-        EXPECT_LT((expSO3(back).toRotationMatrix() - expSO3(phi).toRotationMatrix()).cwiseAbs().maxCoeff(), 1e-14);
+        EXPECT_LT((expSO3(back).toRotationMatrix() - expSO3(phi).toRotationMatrix())
+                      .cwiseAbs()
+                      .maxCoeff(),
+                  1e-14);
         if (theta < kPi) {
           EXPECT_LT((back - phi).norm(), 1e-8) << "theta " << theta;
         }
@@ -75,8 +80,14 @@ TEST(SO3, JacobianIdentitiesOverRandomDraws) {
       const Matrix3 R = expSO3(phi).toRotationMatrix();
       // J_l = R J_r, J_l J_l^-1 = I, J_r J_r^-1 = I.
       EXPECT_LT((leftJacobianSO3(phi) - R * rightJacobianSO3(phi)).cwiseAbs().maxCoeff(), 1e-14);
-      EXPECT_LT((leftJacobianSO3(phi) * leftJacobianInverseSO3(phi) - Matrix3::Identity()).cwiseAbs().maxCoeff(), 1e-13);
-      EXPECT_LT((rightJacobianSO3(phi) * rightJacobianInverseSO3(phi) - Matrix3::Identity()).cwiseAbs().maxCoeff(), 1e-13);
+      EXPECT_LT((leftJacobianSO3(phi) * leftJacobianInverseSO3(phi) - Matrix3::Identity())
+                    .cwiseAbs()
+                    .maxCoeff(),
+                1e-13);
+      EXPECT_LT((rightJacobianSO3(phi) * rightJacobianInverseSO3(phi) - Matrix3::Identity())
+                    .cwiseAbs()
+                    .maxCoeff(),
+                1e-13);
     }
   }
 }
@@ -89,11 +100,13 @@ TEST(SO3, RightJacobianAgainstCentralDifferences) {
     const auto f = [&](const Eigen::VectorXd& d) -> Eigen::VectorXd {
       return logSO3(expSO3(phi).conjugate() * expSO3(phi + Vector3(d)));
     };
-    test::expectJacobianNear("J_r at theta " + std::to_string(theta), rightJacobianSO3(phi), f, Vector3::Zero(), kFdEps, kFdTol);
+    test::expectJacobianNear("J_r at theta " + std::to_string(theta), rightJacobianSO3(phi), f,
+                             Vector3::Zero(), kFdEps, kFdTol);
     const auto g = [&](const Eigen::VectorXd& d) -> Eigen::VectorXd {
       return logSO3(expSO3(phi + Vector3(d)) * expSO3(phi).conjugate());
     };
-    test::expectJacobianNear("J_l at theta " + std::to_string(theta), leftJacobianSO3(phi), g, Vector3::Zero(), kFdEps, kFdTol);
+    test::expectJacobianNear("J_l at theta " + std::to_string(theta), leftJacobianSO3(phi), g,
+                             Vector3::Zero(), kFdEps, kFdTol);
   }
 }
 
@@ -105,7 +118,8 @@ TEST(SO3, SeriesAgreeWithLongDoubleClosedFormsAndAreContinuous) {
     const long double a = (1.0L - std::cos(t)) / (t * t), b = (t - std::sin(t)) / (t * t * t);
     const Vector3 phi(theta, 0, 0), y(0, 1, 0);
     // J_l y for phi along x: y + a (phi x y) + b phi x (phi x y).
-    const Vector3 expected = y + static_cast<double>(a) * phi.cross(y) + static_cast<double>(b) * phi.cross(phi.cross(y));
+    const Vector3 expected = y + static_cast<double>(a) * phi.cross(y) +
+                             static_cast<double>(b) * phi.cross(phi.cross(y));
     EXPECT_LT((leftJacobianSO3(phi) * y - expected).norm(), 5e-16) << theta;
   }
   // Across a threshold the value may change only as much as the function itself does over the
@@ -113,8 +127,10 @@ TEST(SO3, SeriesAgreeWithLongDoubleClosedFormsAndAreContinuous) {
   for (double threshold : {0.2, 1.0}) {
     const Vector3 axis = Vector3(1, -2, 0.5).normalized();
     const double step = threshold * 1e-12;
-    const Matrix6 below = leftJacobianInverseSE3((Vector6() << 0.3, 0.1, -0.2, axis * (threshold - step)).finished());
-    const Matrix6 above = leftJacobianInverseSE3((Vector6() << 0.3, 0.1, -0.2, axis * (threshold + step)).finished());
+    const Matrix6 below =
+        leftJacobianInverseSE3((Vector6() << 0.3, 0.1, -0.2, axis * (threshold - step)).finished());
+    const Matrix6 above =
+        leftJacobianInverseSE3((Vector6() << 0.3, 0.1, -0.2, axis * (threshold + step)).finished());
     EXPECT_LT((below - above).cwiseAbs().maxCoeff(), 2.0 * 2 * step) << threshold;
   }
 }
@@ -130,7 +146,10 @@ TEST(SE3, ExpLogAdjointAndInverse) {
     std::uniform_real_distribution<double> u(-1, 1);
     const Vector6 xi = (Vector6() << u(rng), u(rng), u(rng), u(rng), u(rng), u(rng)).finished();
     // T exp(xi) T^-1 = exp(Ad(T) xi).
-    EXPECT_LT(((T * expSE3(xi) * T.inverse()).matrix() - expSE3(adjoint(T) * xi).matrix()).cwiseAbs().maxCoeff(), 1e-13);
+    EXPECT_LT(((T * expSE3(xi) * T.inverse()).matrix() - expSE3(adjoint(T) * xi).matrix())
+                  .cwiseAbs()
+                  .maxCoeff(),
+              1e-13);
     EXPECT_LT((adjoint(T.inverse()) - adjoint(T).inverse()).cwiseAbs().maxCoeff(), 1e-12);
   }
   // The matrix exponential of the hat agrees with expSE3.
@@ -150,21 +169,31 @@ TEST(SE3, JacobiansAgainstCentralDifferencesAtHardAngles) {
     for (double rho_scale : {0.0, 1e-3, 1.0, 5.0}) {
       Vector6 xi;
       xi << randomAxis(rng) * rho_scale, randomAxis(rng) * theta;
-      const std::string at = "theta " + std::to_string(theta) + " |rho| " + std::to_string(rho_scale);
+      const std::string at =
+          "theta " + std::to_string(theta) + " |rho| " + std::to_string(rho_scale);
       const auto fr = [&](const Eigen::VectorXd& d) -> Eigen::VectorXd {
         return logSE3(expSE3(xi).inverse() * expSE3(xi + Vector6(d)));
       };
-      test::expectJacobianNear("SE3 J_r, " + at, rightJacobianSE3(xi), fr, Vector6::Zero(), kFdEps, kFdTol);
+      test::expectJacobianNear("SE3 J_r, " + at, rightJacobianSE3(xi), fr, Vector6::Zero(), kFdEps,
+                               kFdTol);
       const auto fl = [&](const Eigen::VectorXd& d) -> Eigen::VectorXd {
         return logSE3(expSE3(xi + Vector6(d)) * expSE3(xi).inverse());
       };
-      test::expectJacobianNear("SE3 J_l, " + at, leftJacobianSE3(xi), fl, Vector6::Zero(), kFdEps, kFdTol);
+      test::expectJacobianNear("SE3 J_l, " + at, leftJacobianSE3(xi), fl, Vector6::Zero(), kFdEps,
+                               kFdTol);
       if (theta < kPi - 1e-3) {
         // d log(exp(xi) exp(d)) / dd = J_r^-1(xi).
-        const auto fi = [&](const Eigen::VectorXd& d) -> Eigen::VectorXd { return logSE3(expSE3(xi) * expSE3(Vector6(d))); };
-        test::expectJacobianNear("SE3 J_r^-1, " + at, rightJacobianInverseSE3(xi), fi, Vector6::Zero(), kFdEps, kFdTol * 10);
+        const auto fi = [&](const Eigen::VectorXd& d) -> Eigen::VectorXd {
+          return logSE3(expSE3(xi) * expSE3(Vector6(d)));
+        };
+        test::expectJacobianNear("SE3 J_r^-1, " + at, rightJacobianInverseSE3(xi), fi,
+                                 Vector6::Zero(), kFdEps, kFdTol * 10);
       }
-      EXPECT_LT((leftJacobianSE3(xi) * leftJacobianInverseSE3(xi) - Matrix6::Identity()).cwiseAbs().maxCoeff(), 1e-12) << at;
+      EXPECT_LT((leftJacobianSE3(xi) * leftJacobianInverseSE3(xi) - Matrix6::Identity())
+                    .cwiseAbs()
+                    .maxCoeff(),
+                1e-12)
+          << at;
     }
   }
 }
@@ -175,7 +204,8 @@ TEST(SE3, TinyAnglesKeepTheQBlockExact) {
   for (double theta : {1e-12, 1e-8, 1e-5}) {
     const Vector3 phi = theta * Vector3(0.6, 0.0, -0.8);
     const Matrix3 expected = 0.5 * hat(rho) + (hat(phi) * hat(rho) + hat(rho) * hat(phi)) / 6.0;
-    EXPECT_LT((jacobianQ(rho, phi) - expected).cwiseAbs().maxCoeff(), 1e-16 + theta * theta) << theta;
+    EXPECT_LT((jacobianQ(rho, phi) - expected).cwiseAbs().maxCoeff(), 1e-16 + theta * theta)
+        << theta;
   }
 }
 

@@ -11,16 +11,19 @@ namespace {
 
 constexpr int64_t kBegin = 1605537493718345;  // absolute Unix µs
 constexpr int64_t kEnd = kBegin + 100000;
-const TrajectoryKind kKinds[] = {TrajectoryKind::kCubicSE3, TrajectoryKind::kCubicSplit, TrajectoryKind::kLinear};
+const TrajectoryKind kKinds[] = {TrajectoryKind::kCubicSE3, TrajectoryKind::kCubicSplit,
+                                 TrajectoryKind::kLinear};
 
 // Knots that step by `step` (rad and scene units) from one to the next, in random directions.
 std::vector<SE3> randomKnots(int n, double step, uint64_t seed) {
   std::mt19937_64 rng(seed);
   std::normal_distribution<double> g;
-  std::vector<SE3> knots{SE3(expSO3(Vector3(g(rng), g(rng), g(rng)) * 0.3), Vector3(g(rng), g(rng), g(rng)))};
+  std::vector<SE3> knots{
+      SE3(expSO3(Vector3(g(rng), g(rng), g(rng)) * 0.3), Vector3(g(rng), g(rng), g(rng)))};
   for (int k = 1; k < n; ++k) {
     Vector6 xi;
-    xi << Vector3(g(rng), g(rng), g(rng)).normalized() * step, Vector3(g(rng), g(rng), g(rng)).normalized() * step;
+    xi << Vector3(g(rng), g(rng), g(rng)).normalized() * step,
+        Vector3(g(rng), g(rng), g(rng)).normalized() * step;
     knots.push_back(knots.back() * expSE3(xi));
   }
   return knots;
@@ -32,7 +35,8 @@ TEST(Trajectory, ConstantKnotsGiveAConstantTrajectoryExactly) {
     const Trajectory traj(kind, kBegin, kEnd, std::vector<SE3>(6, T));
     for (double s : {0.0, 0.123, 0.5, 0.999, 1.0}) {
       const SE3 P = traj.evaluate(s);
-      EXPECT_LT((P.matrix() - T.matrix()).cwiseAbs().maxCoeff(), 1e-15) << trajectoryKindName(kind) << " s " << s;
+      EXPECT_LT((P.matrix() - T.matrix()).cwiseAbs().maxCoeff(), 1e-15)
+          << trajectoryKindName(kind) << " s " << s;
       Vector6 v;
       traj.evaluate(s, nullptr, &v);
       EXPECT_LT(v.norm(), 1e-15);
@@ -50,7 +54,8 @@ TEST(Trajectory, LinearInterpolatesItsKnotsAndCubicIsContinuousAcrossSegments) {
     for (int boundary = 1; boundary < 4; ++boundary) {
       const double s = boundary / 4.0;
       const SE3 left = traj.evaluate(s - 1e-12), right = traj.evaluate(s + 1e-12);
-      EXPECT_LT((left.matrix() - right.matrix()).cwiseAbs().maxCoeff(), 1e-10) << trajectoryKindName(kind) << " " << s;
+      EXPECT_LT((left.matrix() - right.matrix()).cwiseAbs().maxCoeff(), 1e-10)
+          << trajectoryKindName(kind) << " " << s;
       Vector6 vl, vr;
       traj.evaluate(s - 1e-12, nullptr, &vl);
       traj.evaluate(s + 1e-12, nullptr, &vr);
@@ -73,12 +78,14 @@ TEST(Trajectory, KnotJacobiansAgainstCentralDifferences) {
             const int k = J.first_knot + a;
             const auto f = [&](const Eigen::VectorXd& d) -> Eigen::VectorXd {
               Trajectory moved = traj;
-              moved.knots()[static_cast<size_t>(k)] = moved.knots()[static_cast<size_t>(k)] * expSE3(Vector6(d));
+              moved.knots()[static_cast<size_t>(k)] =
+                  moved.knots()[static_cast<size_t>(k)] * expSE3(Vector6(d));
               return logSE3(P.inverse() * moved.evaluate(s));
             };
-            test::expectJacobianNear(trajectoryKindName(kind) + " n=" + std::to_string(n) + " step=" + std::to_string(step) +
-                                         " s=" + std::to_string(s) + " knot " + std::to_string(k),
-                                     J.d_pose_d_knot[static_cast<size_t>(a)], f, Vector6::Zero(), 1e-6, 1e-7);
+            test::expectJacobianNear(
+                trajectoryKindName(kind) + " n=" + std::to_string(n) + " step=" +
+                    std::to_string(step) + " s=" + std::to_string(s) + " knot " + std::to_string(k),
+                J.d_pose_d_knot[static_cast<size_t>(a)], f, Vector6::Zero(), 1e-6, 1e-7);
           }
         }
       }
@@ -95,9 +102,11 @@ TEST(Trajectory, JacobiansSatisfyTheLeftInvarianceIdentity) {
       const SE3 P = traj.evaluate(s, &J);
       Matrix6 sum = Matrix6::Zero();
       for (int a = 0; a < J.count; ++a) {
-        sum += J.d_pose_d_knot[static_cast<size_t>(a)] * adjoint(traj.knots()[static_cast<size_t>(J.first_knot + a)].inverse());
+        sum += J.d_pose_d_knot[static_cast<size_t>(a)] *
+               adjoint(traj.knots()[static_cast<size_t>(J.first_knot + a)].inverse());
       }
-      EXPECT_LT((sum - adjoint(P.inverse())).cwiseAbs().maxCoeff(), 1e-12) << trajectoryKindName(kind) << " s " << s;
+      EXPECT_LT((sum - adjoint(P.inverse())).cwiseAbs().maxCoeff(), 1e-12)
+          << trajectoryKindName(kind) << " s " << s;
     }
   }
 }
@@ -109,8 +118,11 @@ TEST(Trajectory, BodyVelocityIsTheDerivativeOfThePose) {
       Vector6 v;
       const SE3 P = traj.evaluate(s, nullptr, &v);
       const double h = 1e-6;
-      const Vector6 numeric = (logSE3(P.inverse() * traj.evaluate(s + h)) - logSE3(P.inverse() * traj.evaluate(s - h))) / (2 * h);
-      EXPECT_LT((v - numeric).norm(), 1e-6 * std::max(1.0, numeric.norm())) << trajectoryKindName(kind) << " s " << s;
+      const Vector6 numeric = (logSE3(P.inverse() * traj.evaluate(s + h)) -
+                               logSE3(P.inverse() * traj.evaluate(s - h))) /
+                              (2 * h);
+      EXPECT_LT((v - numeric).norm(), 1e-6 * std::max(1.0, numeric.norm()))
+          << trajectoryKindName(kind) << " s " << s;
     }
   }
 }
@@ -120,9 +132,13 @@ TEST(Trajectory, TimesAreExactIntegerMicroseconds) {
   EXPECT_EQ(traj.normalizedTime(kBegin), 0.0);
   EXPECT_EQ(traj.normalizedTime(kEnd), 1.0);
   EXPECT_EQ(traj.normalizedTime(kBegin + 25000), 0.25);
-  EXPECT_LT((traj.poseAt(kBegin + 50000).matrix() - traj.evaluate(0.5).matrix()).cwiseAbs().maxCoeff(), 1e-15);
-  EXPECT_THROW(Trajectory(TrajectoryKind::kCubicSE3, kBegin, kEnd, randomKnots(3, 0.1, 1)), std::invalid_argument);
-  EXPECT_THROW(Trajectory(TrajectoryKind::kLinear, kEnd, kBegin, randomKnots(3, 0.1, 1)), std::invalid_argument);
+  EXPECT_LT(
+      (traj.poseAt(kBegin + 50000).matrix() - traj.evaluate(0.5).matrix()).cwiseAbs().maxCoeff(),
+      1e-15);
+  EXPECT_THROW(Trajectory(TrajectoryKind::kCubicSE3, kBegin, kEnd, randomKnots(3, 0.1, 1)),
+               std::invalid_argument);
+  EXPECT_THROW(Trajectory(TrajectoryKind::kLinear, kEnd, kBegin, randomKnots(3, 0.1, 1)),
+               std::invalid_argument);
   EXPECT_EQ(parseTrajectoryKind("split"), TrajectoryKind::kCubicSplit);
 }
 

@@ -1,16 +1,15 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <opencv2/imgproc.hpp>
 
-#include "evkit/deblur/observation.h"
 #include "evkit/base/error.h"
+#include "evkit/deblur/observation.h"
 #include "evkit/events/image_io.h"
 #include "evkit/events/io.h"
 #include "evkit/spline/tum.h"
 #include "evkit/synth/generator.h"
 #include "test_util.h"
-
-#include <opencv2/imgproc.hpp>
 
 namespace evkit::synth {
 namespace {
@@ -36,8 +35,9 @@ TEST(Synth, IdentityPoseFrontoParallelPlaneReproducesTheTexture) {
   // A plane at depth z that exactly covers the field of view: texel (x, y) under pixel (x, y).
   const double z = 2.5;
   Scene scene;
-  scene.rectangles.emplace_back(Vector3(z * ((w - 1) / 2.0 - cam.cx) / cam.fx, z * ((h - 1) / 2.0 - cam.cy) / cam.fy, z),
-                                Vector3::UnitX(), Vector3::UnitY(), z * w / cam.fx, z * h / cam.fy, tex);
+  scene.rectangles.emplace_back(
+      Vector3(z * ((w - 1) / 2.0 - cam.cx) / cam.fx, z * ((h - 1) / 2.0 - cam.cy) / cam.fy, z),
+      Vector3::UnitX(), Vector3::UnitY(), z * w / cam.fx, z * h / cam.fy, tex);
   RenderOptions one;
   one.supersample = 1;
   cv::Mat depth;
@@ -54,7 +54,8 @@ TEST(Synth, ShakeHasTheRequestedBlurAndIsCentredAtMidExposure) {
     s.blur_px = blur;
     const Trajectory traj = makeShake(scene, cam, 120, 90, 0, 100000, s);
     EXPECT_NEAR(blurLengthPx(traj, scene, cam, 120, 90), blur, 0.01 * blur);
-    EXPECT_LT((traj.evaluate(0.5).matrix() - Eigen::Matrix4d::Identity()).cwiseAbs().maxCoeff(), 1e-12);
+    EXPECT_LT((traj.evaluate(0.5).matrix() - Eigen::Matrix4d::Identity()).cwiseAbs().maxCoeff(),
+              1e-12);
   }
 }
 
@@ -66,12 +67,13 @@ TEST(Synth, ObservationFolderIsConsistentWithItsGroundTruth) {
   const SynthOptions o = small(8.0);
   const SynthReport report = writeObservation(scene, o, dir / "obs");
   EXPECT_NEAR(report.blur_px, 8.0, 0.1);
-  for (const char* f : {"blurry.png", "exposure.txt", "events.h5", "calib.txt", "contrast.txt", "gt/poses.txt", "gt/knots.txt",
-                        "gt/depth.npy", "gt/info.txt"}) {
+  for (const char* f : {"blurry.png", "exposure.txt", "events.h5", "calib.txt", "contrast.txt",
+                        "gt/poses.txt", "gt/knots.txt", "gt/depth.npy", "gt/info.txt"}) {
     EXPECT_TRUE(test::fs::exists(dir / (std::string("obs/") + f))) << f;
   }
   const int64_t t0 = o.t_begin_us, t1 = t0 + o.exposure_us;
-  EXPECT_EQ(test::readText(dir / "obs/exposure.txt"), std::to_string(t0) + " " + std::to_string(t1) + "\n");
+  EXPECT_EQ(test::readText(dir / "obs/exposure.txt"),
+            std::to_string(t0) + " " + std::to_string(t1) + "\n");
 
   // Blurry frame against the trapezoidal mean of 161 renders at the true poses.
   const std::vector<StampedPose> poses = readTum(dir / "obs/gt/poses.txt");
@@ -98,12 +100,14 @@ TEST(Synth, ObservationFolderIsConsistentWithItsGroundTruth) {
   const cv::Mat start = readImageFile(dir / ("obs/gt/" + std::to_string(t0) + ".png")).image;
   const cv::Mat end = readImageFile(dir / ("obs/gt/" + std::to_string(t1) + ".png")).image;
   cv::Mat sum = cv::Mat::zeros(o.height, o.width, CV_32F);
-  for (size_t e = 0; e < rec.events.size(); ++e) sum.at<float>(rec.events.y[e], rec.events.x[e]) += 0.2f * rec.events.p[e];
+  for (size_t e = 0; e < rec.events.size(); ++e)
+    sum.at<float>(rec.events.y[e], rec.events.x[e]) += 0.2f * rec.events.p[e];
   const LogMapping log;
   int violations = 0;
   for (int y = 0; y < o.height; ++y) {
     for (int x = 0; x < o.width; ++x) {
-      const double r = log.toLog(start.at<float>(y, x)) + sum.at<float>(y, x) - log.toLog(end.at<float>(y, x));
+      const double r =
+          log.toLog(start.at<float>(y, x)) + sum.at<float>(y, x) - log.toLog(end.at<float>(y, x));
       violations += std::abs(r) > 0.2 + 0.02;  // 16-bit quantisation of the frames
     }
   }
@@ -113,7 +117,8 @@ TEST(Synth, ObservationFolderIsConsistentWithItsGroundTruth) {
   writeObservation(scene, o, dir / "again");
   EXPECT_EQ(test::readText(dir / "obs/blurry.png"), test::readText(dir / "again/blurry.png"));
   const Recording again = readRecording(dir / "again/events.h5");
-  EXPECT_TRUE(again.events.t == rec.events.t && again.events.x == rec.events.x && again.events.p == rec.events.p);
+  EXPECT_TRUE(again.events.t == rec.events.t && again.events.x == rec.events.x &&
+              again.events.p == rec.events.p);
 }
 
 TEST(Synth, RgbdPresetAndSceneFiles) {
@@ -127,18 +132,22 @@ TEST(Synth, RgbdPresetAndSceneFiles) {
   // At the identity pose the first hit lies on the height field: its depth at the same ray.
   const HeightField& hf = *rgbd.height_field;
   for (const auto& [x, y] : std::vector<std::pair<int, int>>{{24, 18}, {5, 30}, {40, 3}}) {
-    // Pixel (x, y) looks along ((x - cx)/fx, (y - cy)/fy, 1): where that ray meets the source image.
+    // Pixel (x, y) looks along ((x - cx)/fx, (y - cy)/fy, 1): where that ray meets the source
+    // image.
     const double u = hf.intrinsics.fx * (x - cam.cx) / cam.fx + hf.intrinsics.cx;
     const double v = hf.intrinsics.fy * (y - cam.cy) / cam.fy + hf.intrinsics.cy;
     cv::Mat patch;
-    cv::getRectSubPix(hf.depth, cv::Size(1, 1), cv::Point2f(static_cast<float>(u), static_cast<float>(v)), patch);
+    cv::getRectSubPix(hf.depth, cv::Size(1, 1),
+                      cv::Point2f(static_cast<float>(u), static_cast<float>(v)), patch);
     EXPECT_NEAR(depth.at<float>(y, x), patch.at<float>(0, 0), 1e-3) << x << ", " << y;
   }
 
   test::writeText(dir / "scene.yaml",
                   "%YAML:1.0\nbackground: 0.2\nobjects:\n"
-                  "  - { type: plane, center: [0, 0, 3], size: [6, 4], texture: { kind: checker, scale: 0.25 } }\n"
-                  "  - { type: box, center: [0, 0, 2], size: [0.4, 0.4, 0.4], rotation: [0, 0.3, 0], texture: { kind: stripes } }\n");
+                  "  - { type: plane, center: [0, 0, 3], size: [6, 4], texture: { kind: checker, "
+                  "scale: 0.25 } }\n"
+                  "  - { type: box, center: [0, 0, 2], size: [0.4, 0.4, 0.4], rotation: [0, 0.3, "
+                  "0], texture: { kind: stripes } }\n");
   const Scene scene = loadScene(dir / "scene.yaml", {});
   EXPECT_EQ(scene.rectangles.size(), 7u);
   EXPECT_DOUBLE_EQ(scene.background, 0.2);
@@ -147,7 +156,8 @@ TEST(Synth, RgbdPresetAndSceneFiles) {
     loadScene(dir / "bad.yaml", {});
     FAIL();
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("object 0: unknown type 'cone'"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("object 0: unknown type 'cone'"), std::string::npos)
+        << e.what();
   }
   EXPECT_THROW(makePreset("nope", {}), Error);
   EXPECT_EQ(suiteEntries("standard").size(), 10u);
@@ -202,7 +212,8 @@ TEST(Synth, HardCasesSaturateDarkenAndDropEvents) {
   auto [noisy, noisy_obs] = make("hard_noisy");
   ASSERT_TRUE(noisy_obs.contrast.has_value());
   EXPECT_DOUBLE_EQ(noisy_obs.contrast->first, 0.2);
-  EXPECT_NE(test::readText(dir / "hard_noisy/gt/info.txt").find("shot_noise_hz 5"), std::string::npos);
+  EXPECT_NE(test::readText(dir / "hard_noisy/gt/info.txt").find("shot_noise_hz 5"),
+            std::string::npos);
 }
 
 }  // namespace

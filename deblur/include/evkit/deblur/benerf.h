@@ -21,16 +21,15 @@
 // (affine in the ray parameter, so two Jacobians per ray suffice) and the spline's knot Jacobians.
 #pragma once
 
+#include <Eigen/Core>
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <opencv2/core.hpp>
 #include <optional>
 #include <random>
 #include <string>
 #include <vector>
-
-#include <Eigen/Core>
-#include <opencv2/core.hpp>
 
 #include "evkit/deblur/deblurrer.h"
 #include "evkit/deblur/settings.h"
@@ -49,8 +48,9 @@ struct BenerfOptions {
   // Field: the fast hash-grid field, or the paper's 8 x 256 MLP (the reference).
   enum class FieldKind { kHash, kMlp };
   FieldKind field = FieldKind::kHash;
-  nerf::HashFieldConfig hash;  // levels, features, table; finest resolution adapted to the image when 0
-  int finest_resolution = 0;   // 0: the image's larger side
+  nerf::HashFieldConfig
+      hash;  // levels, features, table; finest resolution adapted to the image when 0
+  int finest_resolution = 0;  // 0: the image's larger side
   // The field sees NDC (x, y, depth_scale * z): below 1 the grid's levels have fewer cells along
   // depth than across the image. The views of one exposure differ by millimetres, so depth is
   // weakly observed while the image plane needs pixel resolution. Measured on the fast budget
@@ -62,22 +62,22 @@ struct BenerfOptions {
   double knot_init = 0.01;  // knots start at exp(u), u uniform in [-knot_init, knot_init]^6
   // Where the trajectory starts. kIdentity: every knot near identity (the paper). kEvents: a
   // constant rotation over the exposure found from the events by contrast maximisation
-  // (rotationFromEvents), the knots fitted to it, then jittered as above; a departure from the paper
-  // that takes away the early phase where the trajectory has to find the motion (and the runs that
-  // never do; BENCHMARKS.md).
+  // (rotationFromEvents), the knots fitted to it, then jittered as above; a departure from the
+  // paper that takes away the early phase where the trajectory has to find the motion (and the runs
+  // that never do; BENCHMARKS.md).
   enum class Init { kIdentity, kEvents };
   Init init = Init::kEvents;
-  int virtual_views = 0;    // n; 0: adapted to the blur length (measured from the events)
-  double alpha = 0.1;  // event window, fraction of the exposure
+  int virtual_views = 0;  // n; 0: adapted to the blur length (measured from the events)
+  double alpha = 0.1;     // event window, fraction of the exposure
   // Event windows per step, the event pixels dealt among them (the paper: one window per step). A
   // single window gives all of a step's event gradients the same two times; many windows spread
   // them over the exposure at the cost of two pose evaluations each. Measured on the standard suite
   // at `fast` (BENCHMARKS.md): 1 -> 34.6 dB, 32 -> 34.8, 128 -> 35.3, 256 -> 35.0, 2048 slower and
   // no better.
   int windows = 128;
-  // Thresholds (C_on, C_off) of the event term, over contrast.txt. With neither, and the form kAuto,
-  // EDI's search estimates c (estimate_contrast): a c inside the search's range is used in the
-  // direct form; at an end of the range (the search's energy was monotonic, as on low-texture
+  // Thresholds (C_on, C_off) of the event term, over contrast.txt. With neither, and the form
+  // kAuto, EDI's search estimates c (estimate_contrast): a c inside the search's range is used in
+  // the direct form; at an end of the range (the search's energy was monotonic, as on low-texture
   // scenes) the events are normalised. Measured without thresholds at `fast` (BENCHMARKS.md):
   // standard suite 34.41 -> 34.97 dB, noisy 34.48 -> 34.72.
   std::optional<std::pair<double, double>> contrast;
@@ -90,11 +90,11 @@ struct BenerfOptions {
   // Weight of the event term; < 0: by form, the paper's presets: 0.1 direct (synthetic data), 2
   // normalised (real data) at the paper's 1,024 event pixels per step, scaled with event_rays (the
   // normalised term is a mean of squared differences of unit vectors, so it falls as 1 / pixels:
-  // 4 at `fast`'s 2,048; measured without contrast.txt on the standard suite at `fast`, BENCHMARKS.md:
-  // β 2 -> 33.5 dB, 4 -> 34.4, 6 -> 34.4). The direct form's accumulated events are off the true log change by up
-  // to a threshold at each end of the window; with 0.1 the exact blurry frame weighs more (measured
-  // on the standard suite at `fast`, BENCHMARKS.md: 0.1 -> 34.7 dB, 0.25 -> 34.5, 1 -> 33.3, 0.05
-  // lost planes_blur40).
+  // 4 at `fast`'s 2,048; measured without contrast.txt on the standard suite at `fast`,
+  // BENCHMARKS.md: β 2 -> 33.5 dB, 4 -> 34.4, 6 -> 34.4). The direct form's accumulated events are
+  // off the true log change by up to a threshold at each end of the window; with 0.1 the exact
+  // blurry frame weighs more (measured on the standard suite at `fast`, BENCHMARKS.md: 0.1 -> 34.7
+  // dB, 0.25 -> 34.5, 1 -> 33.3, 0.05 lost planes_blur40).
   double beta = -1;
   // The blur term is in linear intensity and the event term in log intensity, so their balance
   // shifts with the frame's mean brightness m as m^2. Below dim_frame the blur term is weighed by
@@ -118,7 +118,8 @@ struct BenerfOptions {
   int prefit = 0;
   double field_lr = 1e-2, knot_lr = 3e-3;
   double lr_final = 0.1;  // both rates decay exponentially to this fraction at the last iteration
-  double budget_seconds = 0;  // > 0: the iteration count is chosen so that the whole run (training and renders) fits this wall time
+  double budget_seconds = 0;  // > 0: the iteration count is chosen so that the whole run (training
+                              // and renders) fits this wall time
   uint64_t seed = 1;
   int threads = 0;  // 0: OpenMP's default
   LogMapping log;
@@ -126,7 +127,8 @@ struct BenerfOptions {
   // resume continues from one (the same observation and settings).
   std::string checkpoint, resume;
   int checkpoint_every = 500;
-  int stop_after = 0;  // > 0: stop (after checkpointing) at this iteration; resume continues the same run
+  int stop_after =
+      0;  // > 0: stop (after checkpointing) at this iteration; resume continues the same run
   int curve_every = 25;  // training-curve points
 
   // Throws evkit::Error naming the first setting out of its range.
@@ -164,7 +166,8 @@ struct BlurMeasurement {
   bool searched = false;  // c from EDI's search
   bool inside = false;    // ... and not at an end of the search's range
 };
-BlurMeasurement measureBlur(const Observation& obs, const std::optional<std::pair<double, double>>& contrast,
+BlurMeasurement measureBlur(const Observation& obs,
+                            const std::optional<std::pair<double, double>>& contrast,
                             const LogMapping& log = {});
 // n from the blur length: about one view per 2 px of motion, within [5, 19].
 int virtualViewsFor(double blur_px);
@@ -175,7 +178,8 @@ int virtualViewsFor(double blur_px);
 // event to mid-exposure by exp(omega (s - 1/2)), s its normalised time, gives the sharpest image of
 // warped events (largest variance, Gaussian-smoothed). A constant angular velocity; translation is
 // not modelled (it shows up as part of the rotation). blur_px sets the search's first step.
-Vector3 rotationFromEvents(const Observation& obs, const nerf::PinholeCamera& camera, double blur_px);
+Vector3 rotationFromEvents(const Observation& obs, const nerf::PinholeCamera& camera,
+                           double blur_px);
 
 // One optimisation problem: the observation's data, the field and the trajectory. Templated on the
 // scalar so that the whole pipeline can be checked against finite differences in double.
@@ -185,10 +189,12 @@ class BenerfProblem {
   BenerfProblem(const Observation& obs, const BenerfOptions& options, int virtual_views);
 
   struct Batch {
-    std::vector<int> blur_pixels;   // pixel indices y * width + x
+    std::vector<int> blur_pixels;  // pixel indices y * width + x
     std::vector<int> event_pixels;
-    std::vector<int64_t> window_begin, window_end;  // the event windows (event pixel i: window i mod count)
-    std::vector<float> jitter;  // per ray and sample, in [0, 1): blur rays first, then event rays (a, b)
+    std::vector<int64_t> window_begin,
+        window_end;  // the event windows (event pixel i: window i mod count)
+    std::vector<float>
+        jitter;  // per ray and sample, in [0, 1): blur rays first, then event rays (a, b)
   };
   Batch sampleBatch(std::mt19937_64& rng) const;
 
@@ -213,7 +219,9 @@ class BenerfProblem {
   Trajectory& trajectory() { return trajectory_; }
   const nerf::PinholeCamera& camera() const { return camera_; }
   int virtualViews() const { return views_; }
-  double viewTime(int k) const { return (k + 0.5) / views_; }  // view k's normalised time in the exposure
+  double viewTime(int k) const {
+    return (k + 0.5) / views_;
+  }  // view k's normalised time in the exposure
   int64_t eventsInExposure() const { return static_cast<int64_t>(events_.size()); }
   bool normalisedEvents() const { return normalised_; }
   double beta() const { return beta_; }
@@ -230,7 +238,7 @@ class BenerfProblem {
   BenerfOptions options_;
   nerf::PinholeCamera camera_;
   int channels_, views_;
-  cv::Mat blurry_;  // float32
+  cv::Mat blurry_;                     // float32
   std::vector<cv::Mat> view_targets_;  // float32; empty: the blur term
   Trajectory trajectory_;
   std::unique_ptr<nerf::RadianceField<T>> field_;
@@ -240,8 +248,8 @@ class BenerfProblem {
   bool known_contrast_ = false;
   bool normalised_ = true;  // the event term's form
   double beta_ = 1;
-  double blur_weight_ = 1;  // the blur term's weight: 1, more for a dim frame
-  PixelEventIndex events_;          // the exposure's events by pixel
+  double blur_weight_ = 1;           // the blur term's weight: 1, more for a dim frame
+  PixelEventIndex events_;           // the exposure's events by pixel
   std::vector<double> event_level_;  // per event of events_: the accumulated polarity after it
 };
 

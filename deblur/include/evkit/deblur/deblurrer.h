@@ -29,7 +29,8 @@ struct DeblurResult {
   std::map<std::string, double> parameters;   // what the method chose or used (e.g. "contrast")
   std::vector<std::pair<int, double>> curve;  // training curve (iteration, loss), when there is one
   std::vector<std::pair<int, double>> curve_psnr;  // (iteration, PSNR of the mid frame against gt/)
-  cv::Mat disparity;  // float32 at mid-exposure, where the method models depth (1 / depth, arbitrary scale)
+  cv::Mat disparity;  // float32 at mid-exposure, where the method models depth (1 / depth,
+                      // arbitrary scale)
 };
 
 // A `contrast=C[,C_off]` setting as (C_on, C_off), both positive; throws evkit::Error otherwise.
@@ -47,9 +48,11 @@ std::vector<std::string> deblurrerNames();
 // Each setting of a method with its type, default and help, one per line.
 std::string deblurrerHelp(const std::string& name);
 // Throws evkit::Error for an unknown name or setting.
-std::unique_ptr<Deblurrer> makeDeblurrer(const std::string& name, const MethodSettings& settings = {});
+std::unique_ptr<Deblurrer> makeDeblurrer(const std::string& name,
+                                         const MethodSettings& settings = {});
 
-// Default request: n evenly spaced times over the exposure (start and end included) plus the middle.
+// Default request: n evenly spaced times over the exposure (start and end included) plus the
+// middle.
 DeblurRequest defaultRequest(const Observation& obs, int n = 5);
 
 }  // namespace evkit

@@ -11,19 +11,19 @@
 // latent frame at mid-exposure (see EdiModel::searchContrast).
 #pragma once
 
+#include <opencv2/core.hpp>
 #include <optional>
 #include <vector>
 
-#include <opencv2/core.hpp>
-
 #include "evkit/deblur/deblurrer.h"
-#include "evkit/events/pixel_index.h"
 #include "evkit/deblur/settings.h"
+#include "evkit/events/pixel_index.h"
 
 namespace evkit {
 
 struct EdiOptions {
-  std::optional<double> contrast_on, contrast_off;  // fixed thresholds; else contrast.txt; else search
+  std::optional<double> contrast_on,
+      contrast_off;  // fixed thresholds; else contrast.txt; else search
   bool use_observation_contrast = true;
   double search_min = 0.1, search_max = 0.5;  // the published range for DAVIS data
   int search_grid = 21;                       // coarse grid, then golden-section refinement
@@ -47,14 +47,17 @@ class EdiModel {
   // Events of [t_begin, t_end] (others are ignored), on a width x height sensor.
   EdiModel(const EventSpan& events, int width, int height, int64_t t_begin_us, int64_t t_end_us);
   // Latent frame at t (grey or colour like `blurry`), for thresholds c_on, c_off.
-  cv::Mat latent(const cv::Mat& blurry, int64_t t_us, double c_on, double c_off, const EdiOptions& options) const;
+  cv::Mat latent(const cv::Mat& blurry, int64_t t_us, double c_on, double c_off,
+                 const EdiOptions& options) const;
   // The sharpness energy of the grey latent frame at t (lower is sharper): the normalised
   // sparsity ||grad L||_1 / ||grad L||_2 of its gradient magnitude (Krishnan et al., CVPR 2011),
   // i.e. total variation against gradient energy.
-  double sparsityEnergy(const cv::Mat& blurry_grey, int64_t t_us, double c, double ratio, const EdiOptions& options) const;
+  double sparsityEnergy(const cv::Mat& blurry_grey, int64_t t_us, double c, double ratio,
+                        const EdiOptions& options) const;
   // c_on minimising the energy over [search_min, search_max] (c_off = ratio * c_on): a grid,
   // then golden-section refinement around its best point.
-  double searchContrast(const cv::Mat& blurry_grey, int64_t t_us, double ratio, const EdiOptions& options) const;
+  double searchContrast(const cv::Mat& blurry_grey, int64_t t_us, double ratio,
+                        const EdiOptions& options) const;
 
  private:
   struct Segment {

@@ -2,9 +2,8 @@
 // no-reference BRISQUE score (lower is better) with the LIVE model that Debian's opencv-data ships.
 #pragma once
 
-#include <string>
-
 #include <opencv2/core.hpp>
+#include <string>
 
 namespace evkit {
 

@@ -46,26 +46,34 @@ class SettingsTable {
  public:
   struct Entry {
     std::string key, type, help;
-    std::function<void(Options&, const std::string&)> parse;  // sets the value; throws when out of range
-    std::function<void(const Options&)> check;                // throws when the struct's value is out of range
-    std::function<std::string(const Options&)> show;           // the value, as --help prints defaults
+    std::function<void(Options&, const std::string&)>
+        parse;                                  // sets the value; throws when out of range
+    std::function<void(const Options&)> check;  // throws when the struct's value is out of range
+    std::function<std::string(const Options&)> show;  // the value, as --help prints defaults
   };
 
   explicit SettingsTable(std::string method) : method_(std::move(method)) {}
 
-  SettingsTable& number(const std::string& key, double Options::*member, SettingRange range, const std::string& help) {
+  SettingsTable& number(const std::string& key, double Options::*member, SettingRange range,
+                        const std::string& help) {
     const std::string method = method_;
-    return add({key, "number", help,
-                [=](Options& o, const std::string& v) { o.*member = inRange(method, key, v, settingNumber(method, key, v), range); },
-                [=](const Options& o) { inRange(method, key, shortNumber(o.*member), o.*member, range); },
-                [=](const Options& o) { return shortNumber(o.*member); }});
+    return add(
+        {key, "number", help,
+         [=](Options& o, const std::string& v) {
+           o.*member = inRange(method, key, v, settingNumber(method, key, v), range);
+         },
+         [=](const Options& o) { inRange(method, key, shortNumber(o.*member), o.*member, range); },
+         [=](const Options& o) { return shortNumber(o.*member); }});
   }
 
   template <typename Int>
-  SettingsTable& integer(const std::string& key, Int Options::*member, SettingRange range, const std::string& help) {
+  SettingsTable& integer(const std::string& key, Int Options::*member, SettingRange range,
+                         const std::string& help) {
     const std::string method = method_;
     return add({key, "integer", help,
-                [=](Options& o, const std::string& v) { o.*member = static_cast<Int>(integerIn(method, key, v, range)); },
+                [=](Options& o, const std::string& v) {
+                  o.*member = static_cast<Int>(integerIn(method, key, v, range));
+                },
                 [=](const Options& o) { integerIn(method, key, std::to_string(o.*member), range); },
                 [=](const Options& o) { return std::to_string(o.*member); }});
   }
@@ -73,15 +81,17 @@ class SettingsTable {
   // 0 or 1 (any number: non-zero is true).
   SettingsTable& flag(const std::string& key, bool Options::*member, const std::string& help) {
     const std::string method = method_;
-    return add({key, "0|1", help,
-                [=](Options& o, const std::string& v) { o.*member = settingNumber(method, key, v) != 0; },
-                [](const Options&) {}, [=](const Options& o) { return std::string(o.*member ? "1" : "0"); }});
+    return add(
+        {key, "0|1", help,
+         [=](Options& o, const std::string& v) { o.*member = settingNumber(method, key, v) != 0; },
+         [](const Options&) {},
+         [=](const Options& o) { return std::string(o.*member ? "1" : "0"); }});
   }
 
   // One of named values.
   template <typename Value>
-  SettingsTable& choice(const std::string& key, Value Options::*member, std::vector<std::pair<std::string, Value>> names,
-                        const std::string& help) {
+  SettingsTable& choice(const std::string& key, Value Options::*member,
+                        std::vector<std::pair<std::string, Value>> names, const std::string& help) {
     std::string type;
     for (const auto& [name, value] : names) type += (type.empty() ? "" : "|") + name;
     const std::string method = method_;
@@ -90,7 +100,8 @@ class SettingsTable {
                   for (const auto& [name, value] : names) {
                     if (name == v) return void(o.*member = value);
                   }
-                  throw Error(method + ": " + key + " must be " + listOr(names) + ", not '" + v + "'");
+                  throw Error(method + ": " + key + " must be " + listOr(names) + ", not '" + v +
+                              "'");
                 },
                 [](const Options&) {},
                 [=](const Options& o) {
@@ -121,7 +132,9 @@ class SettingsTable {
   // "KEY (TYPE, default VALUE): HELP" per line.
   std::string help(const Options& defaults) const {
     std::string text;
-    for (const Entry& e : entries_) text += "  " + e.key + " (" + e.type + ", default " + e.show(defaults) + "): " + e.help + "\n";
+    for (const Entry& e : entries_)
+      text +=
+          "  " + e.key + " (" + e.type + ", default " + e.show(defaults) + "): " + e.help + "\n";
     return text;
   }
   std::vector<std::string> keys() const {
@@ -144,22 +157,26 @@ class SettingsTable {
     for (const Entry& e : entries_) known += (known.empty() ? "" : ", ") + e.key;
     throw Error(method_ + ": unknown setting '" + key + "' (known: " + known + ")");
   }
-  static double inRange(const std::string& method, const std::string& key, const std::string& text, double v,
-                        const SettingRange& range) {
-    if (!range.contains(v)) throw Error(method + ": setting " + key + "=" + text + " must be " + range.describe());
+  static double inRange(const std::string& method, const std::string& key, const std::string& text,
+                        double v, const SettingRange& range) {
+    if (!range.contains(v))
+      throw Error(method + ": setting " + key + "=" + text + " must be " + range.describe());
     return v;
   }
-  static double integerIn(const std::string& method, const std::string& key, const std::string& text, const SettingRange& range) {
+  static double integerIn(const std::string& method, const std::string& key,
+                          const std::string& text, const SettingRange& range) {
     const double v = settingNumber(method, key, text);
     if (v != std::floor(v) || !range.contains(v) || std::abs(v) > 1e9) {
-      throw Error(method + ": setting " + key + "=" + text + " must be an integer " + range.describe());
+      throw Error(method + ": setting " + key + "=" + text + " must be an integer " +
+                  range.describe());
     }
     return v;
   }
   template <typename Value>
   static std::string listOr(const std::vector<std::pair<std::string, Value>>& names) {
     std::string s;
-    for (size_t i = 0; i < names.size(); ++i) s += (i == 0 ? "" : i + 1 == names.size() ? " or " : ", ") + names[i].first;
+    for (size_t i = 0; i < names.size(); ++i)
+      s += (i == 0 ? "" : i + 1 == names.size() ? " or " : ", ") + names[i].first;
     return s;
   }
 

@@ -5,10 +5,9 @@
 #pragma once
 
 #include <cstdint>
+#include <opencv2/core.hpp>
 #include <utility>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 #include "evkit/events/event_store.h"
 
@@ -36,8 +35,8 @@ struct TimeSurface {
 TimeSurface timeSurface(const EventSpan& events, int64_t t_ref_us, double tau_us);
 
 // Voxel grid with B temporal bins over [t0, t1], as in E2VID (Rebecq et al., TPAMI 2019): an event
-// at time t sits at t* = (B - 1)(t - t0)/(t1 - t0) and adds p·max(0, 1 - |b - t*|) to bin b, i.e. it
-// is split bilinearly between the two nearest bins; the first event time maps to bin 0 and t1 to
+// at time t sits at t* = (B - 1)(t - t0)/(t1 - t0) and adds p·max(0, 1 - |b - t*|) to bin b, i.e.
+// it is split bilinearly between the two nearest bins; the first event time maps to bin 0 and t1 to
 // bin B - 1. With t1 == t0 every event falls in bin 0.
 std::vector<cv::Mat> voxelGrid(const EventSpan& events, int bins, int64_t t0_us, int64_t t1_us);
 

@@ -16,8 +16,8 @@ bool parseSecondsAsMicros(const char*& p, const char* end, int64_t& micros);
 // of range.
 bool parseInt(const char*& p, const char* end, int64_t min, int64_t max, int64_t& value);
 
-// Writes t (µs) as seconds with exactly six decimals ("-0.000001", "1605537493.718345"); returns the
-// end of the written text. `out` needs 24 bytes.
+// Writes t (µs) as seconds with exactly six decimals ("-0.000001", "1605537493.718345"); returns
+// the end of the written text. `out` needs 24 bytes.
 char* formatMicrosAsSeconds(int64_t micros, char* out);
 
 }  // namespace evkit

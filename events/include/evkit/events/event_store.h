@@ -64,7 +64,9 @@ class EventStore {
   void append(const EventSpan& events);
 
   EventSpan view() const { return EventSpan{t, x, y, p, sensor_}; }
-  EventSpan sliceTime(int64_t t_begin, int64_t t_end) const { return view().sliceTime(t_begin, t_end); }
+  EventSpan sliceTime(int64_t t_begin, int64_t t_end) const {
+    return view().sliceTime(t_begin, t_end);
+  }
 
   int64_t countOn() const;
 
@@ -84,8 +86,8 @@ EventStore merge(const EventSpan& a, const EventSpan& b);
 
 // Throws evkit::Error naming `source` and the index of the first event that lies outside the sensor
 // (when the sensor is known), has a polarity other than ±1, or goes back in time. For a part of a
-// longer stream, `first_index` numbers the events in the message and `previous_t` is the time of the
-// event before the part.
+// longer stream, `first_index` numbers the events in the message and `previous_t` is the time of
+// the event before the part.
 void validate(const EventSpan& events, const std::string& source, size_t first_index = 0,
               int64_t previous_t = INT64_MIN);
 

@@ -2,9 +2,8 @@
 #pragma once
 
 #include <cstdint>
-#include <vector>
-
 #include <opencv2/core.hpp>
+#include <vector>
 
 namespace evkit {
 
@@ -16,7 +15,9 @@ struct Frame {
   // Bit depth of the source (8 or 16); writers keep it so that 16-bit in gives 16-bit out.
   int bit_depth = 8;
 
-  int64_t midExposure() const { return exposure_start_us + (exposure_end_us - exposure_start_us) / 2; }
+  int64_t midExposure() const {
+    return exposure_start_us + (exposure_end_us - exposure_start_us) / 2;
+  }
 };
 
 }  // namespace evkit

@@ -6,10 +6,9 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 #include "evkit/events/event_store.h"
 #include "evkit/events/frame.h"
@@ -35,12 +34,13 @@ struct SequenceOptions {
   // Video: timestamps t0 + i / fps, fps from the file unless given.
   double fps = 0;
   int64_t start_us = 0;  // time of the first video frame
-  bool srgb = false;     // decode sRGB-encoded input to linear (rendered PNGs and videos usually are)
+  bool srgb = false;  // decode sRGB-encoded input to linear (rendered PNGs and videos usually are)
 };
 
 // A folder (with timestamps.txt or images.txt), a timestamps file, or a video file (by extension:
 // .mp4 .avi .mkv .mov .webm .mpg).
-std::unique_ptr<FrameSequence> openFrameSequence(const std::string& path, const SequenceOptions& options = {});
+std::unique_ptr<FrameSequence> openFrameSequence(const std::string& path,
+                                                 const SequenceOptions& options = {});
 
 // Decodes sRGB (IEC 61966-2-1) to linear, elementwise.
 cv::Mat srgbToLinear(const cv::Mat& image);
@@ -64,9 +64,11 @@ struct DriverOptions {
 };
 
 // Receives events (sorted, in time order across calls) and finished blurry frames.
-using SimulationSink = std::function<void(const EventStore& events, const std::vector<Frame>& blurry)>;
+using SimulationSink =
+    std::function<void(const EventStore& events, const std::vector<Frame>& blurry)>;
 
-SimulatorStats simulateSequence(FrameSequence& sequence, const DriverOptions& options, const SimulationSink& sink);
+SimulatorStats simulateSequence(FrameSequence& sequence, const DriverOptions& options,
+                                const SimulationSink& sink);
 
 struct AdaptiveOptions {
   // ESIM's rule: steps such that no pixel's log intensity changes by more than lambda C between
@@ -76,7 +78,8 @@ struct AdaptiveOptions {
   int64_t max_step_us = 10000;
 };
 
-SimulatorStats simulateAdaptive(RenderSource& source, int64_t t_begin_us, int64_t t_end_us, const DriverOptions& options,
-                                const AdaptiveOptions& adaptive, const SimulationSink& sink);
+SimulatorStats simulateAdaptive(RenderSource& source, int64_t t_begin_us, int64_t t_end_us,
+                                const DriverOptions& options, const AdaptiveOptions& adaptive,
+                                const SimulationSink& sink);
 
 }  // namespace evkit

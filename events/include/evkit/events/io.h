@@ -26,8 +26,8 @@
 namespace evkit {
 
 enum class Format {
-  kText,       // RPG: "t x y p" per line, t in seconds, p 0/1 or ±1; optional "width height" first line
-  kHdf5,       // evkit's layout (read and write); DSEC and event_utils layouts (read)
+  kText,  // RPG: "t x y p" per line, t in seconds, p 0/1 or ±1; optional "width height" first line
+  kHdf5,  // evkit's layout (read and write); DSEC and event_utils layouts (read)
   kRpgFolder,  // RPG dataset folder: events.txt, images.txt + images/, calib.txt (read)
   kAedat2,     // jAER AEDAT 2.0: DVS events, APS frames, IMU (read)
   kAedat31,    // cAER AEDAT 3.1: polarity and frame packets (read)
@@ -48,9 +48,9 @@ Format outputFormat(const std::string& path);
 
 struct ReaderInfo {
   Format format = Format::kText;
-  std::string layout;   // e.g. "rpg-text", "evkit", "dsec", "event_utils", "aedat4-lz4"
-  std::string camera;   // as the file names it ("DAVIS240C", "DVXplorer_DXB00010"), when it does
-  SensorSize sensor;    // unknown (0x0) when the file does not say; see readRecording
+  std::string layout;  // e.g. "rpg-text", "evkit", "dsec", "event_utils", "aedat4-lz4"
+  std::string camera;  // as the file names it ("DAVIS240C", "DVXplorer_DXB00010"), when it does
+  SensorSize sensor;   // unknown (0x0) when the file does not say; see readRecording
   std::optional<int64_t> event_count;  // when the format knows it without a full pass
   std::optional<Calibration> calibration;
   // Format-specific tallies, complete once the reader is exhausted ("aps_words", "imu_words",
@@ -107,9 +107,9 @@ Compression parseCompression(const std::string& name);
 struct WriterOptions {
   // AEDAT 4: kLz4 (default), kZstd or kNone, as DV writes them.
   // HDF5: kBloscLz4 (byte shuffle + LZ4 inside Blosc, as DSEC) reads ~4x faster than kDeflate
-  // but needs the Blosc filter plugin to read (Debian: hdf5-filter-plugin; pip: `import hdf5plugin`);
-  // kDeflate (shuffle + deflate) is readable by every HDF5 build. Unset: Blosc-LZ4 when the plugin
-  // is installed, otherwise deflate.
+  // but needs the Blosc filter plugin to read (Debian: hdf5-filter-plugin; pip: `import
+  // hdf5plugin`); kDeflate (shuffle + deflate) is readable by every HDF5 build. Unset: Blosc-LZ4
+  // when the plugin is installed, otherwise deflate.
   std::optional<Compression> compression;
   int level = 1;  // deflate 0-9; Blosc clevel 0-9 (1 keeps LZ4 at its fastest); Zstandard 1-19
 };

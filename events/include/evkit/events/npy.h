@@ -1,10 +1,9 @@
 // NumPy .npy files (format version 1.0), so that float results load with numpy.load().
 #pragma once
 
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 namespace evkit {
 

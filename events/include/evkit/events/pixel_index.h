@@ -3,7 +3,8 @@
 // without searching. Events outside the width x height sensor are left out.
 //
 //   PixelEventIndex index(events, width, height);
-//   for (uint32_t e = index.begin(p); e < index.end(p); ++e) use(index.t()[e], index.polarity()[e]);
+//   for (uint32_t e = index.begin(p); e < index.end(p); ++e) use(index.t()[e],
+//   index.polarity()[e]);
 #pragma once
 
 #include <cstdint>

@@ -20,9 +20,8 @@
 #pragma once
 
 #include <cstdint>
-#include <vector>
-
 #include <opencv2/core.hpp>
+#include <vector>
 
 #include "evkit/events/event_store.h"
 #include "evkit/events/log_intensity.h"
@@ -30,9 +29,9 @@
 namespace evkit {
 
 struct SimulatorOptions {
-  double contrast_pos = 0.2;   // C+, log units
-  double contrast_neg = 0.2;   // C-
-  double sigma = 0.0;          // per-pixel threshold mismatch (std. dev., log units)
+  double contrast_pos = 0.2;  // C+, log units
+  double contrast_neg = 0.2;  // C-
+  double sigma = 0.0;         // per-pixel threshold mismatch (std. dev., log units)
   int64_t refractory_us = 0;
   double shot_noise_rate_hz = 0.0;  // per pixel
   double leak_rate_hz = 0.0;        // per pixel
@@ -90,8 +89,8 @@ class EventSimulator {
 };
 
 // Linear intensity of a colour frame for a monochrome sensor: 0.299 R + 0.587 G + 0.114 B (ITU-R
-// BT.601 weights, applied to linear values; BGR in memory). With bayer_rggb, each pixel instead sees
-// the one channel of its colour filter (an RGGB mosaic, as colour DAVIS sensors).
+// BT.601 weights, applied to linear values; BGR in memory). With bayer_rggb, each pixel instead
+// sees the one channel of its colour filter (an RGGB mosaic, as colour DAVIS sensors).
 cv::Mat toSensorIntensity(const cv::Mat& image, bool bayer_rggb = false);
 
 // Blurry frames: the time-weighted mean of the linearly interpolated linear frames over each

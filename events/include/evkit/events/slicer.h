@@ -44,7 +44,8 @@ class EventSlicer {
   bool stopped() const { return stopped_; }
 
  private:
-  EventSlicer(int64_t length_us, size_t count, SensorSize sensor) : length_(length_us), count_(count), pending_(sensor) {}
+  EventSlicer(int64_t length_us, size_t count, SensorSize sensor)
+      : length_(length_us), count_(count), pending_(sensor) {}
   void emit(size_t end_index, int64_t t0, int64_t t1, const Callback& callback);
   void slice(bool final, const Callback& callback);
 

@@ -13,8 +13,8 @@ namespace evkit::nerf {
 struct AdamOptions {
   double learning_rate = 1e-2;
   double beta1 = 0.9, beta2 = 0.99, epsilon = 1e-15;
-  double decay_rate = 0.1;       // lr multiplier after decay_steps
-  double decay_steps = 1e9;      // effectively constant unless set
+  double decay_rate = 0.1;   // lr multiplier after decay_steps
+  double decay_steps = 1e9;  // effectively constant unless set
 };
 
 template <typename T>

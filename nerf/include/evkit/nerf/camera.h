@@ -42,7 +42,8 @@ NdcRay toNdc(const Ray& ray, const PinholeCamera& camera, double near);
 // perturbation T_world_cam exp(eps), eps = (rho, phi). With r = d / d_z:
 //   p_x = a_x ((1 - t)/n (o_x + (n - o_z) r_x) + t r_x),  p_y alike,  p_z = 2 t - 1;
 //   do/drho = R, dd/dphi = -R [d_cam]x.
-Eigen::Matrix<double, 3, 6> ndcPointPoseJacobian(const PinholeCamera& camera, const SE3& T_world_cam, double u, double v,
+Eigen::Matrix<double, 3, 6> ndcPointPoseJacobian(const PinholeCamera& camera,
+                                                 const SE3& T_world_cam, double u, double v,
                                                  double t, double near);
 
 }  // namespace evkit::nerf

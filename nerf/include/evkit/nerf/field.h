@@ -53,9 +53,9 @@ class RadianceField {
 
 struct MlpFieldConfig {
   int frequencies = 10;
-  int depth = 8;    // hidden layers of the trunk
+  int depth = 8;  // hidden layers of the trunk
   int width = 256;
-  int skip = 4;     // the input joins the 5th layer
+  int skip = 4;  // the input joins the 5th layer
   int colour_width = 128;
 };
 
@@ -69,8 +69,10 @@ struct HashFieldConfig {
 };
 
 template <typename T>
-std::unique_ptr<RadianceField<T>> makeMlpField(const MlpFieldConfig& config, int channels, uint64_t seed);
+std::unique_ptr<RadianceField<T>> makeMlpField(const MlpFieldConfig& config, int channels,
+                                               uint64_t seed);
 template <typename T>
-std::unique_ptr<RadianceField<T>> makeHashField(const HashFieldConfig& config, int channels, uint64_t seed);
+std::unique_ptr<RadianceField<T>> makeHashField(const HashFieldConfig& config, int channels,
+                                                uint64_t seed);
 
 }  // namespace evkit::nerf

@@ -4,12 +4,12 @@
 // they fit, by the spatial hash (x * 1) ^ (y * 2654435761) ^ (z * 805459861) otherwise; features
 // are trilinearly interpolated. Positions are in [0, 1]^3 (clamped).
 //
-// Forward runs over blocks of samples (threads own blocks; the tables are only read), level by level
-// within a block, corners and weights computed for 64 samples at once (vectorised over samples).
-// Backward runs level by level (threads own whole levels: each level's table slice, ~1 MB, stays
-// in its thread's cache, and the gradient scatter needs no atomics) on feature gradients stored
-// level-major, [level][sample][feature], so that one level's pass reads contiguous memory; it
-// recomputes the corners (cheaper than storing them) and marks the touched entries so that Adam
+// Forward runs over blocks of samples (threads own blocks; the tables are only read), level by
+// level within a block, corners and weights computed for 64 samples at once (vectorised over
+// samples). Backward runs level by level (threads own whole levels: each level's table slice, ~1
+// MB, stays in its thread's cache, and the gradient scatter needs no atomics) on feature gradients
+// stored level-major, [level][sample][feature], so that one level's pass reads contiguous memory;
+// it recomputes the corners (cheaper than storing them) and marks the touched entries so that Adam
 // can update only those.
 #pragma once
 
@@ -21,8 +21,8 @@ namespace evkit::nerf {
 
 struct HashGridConfig {
   int levels = 8;
-  int features = 4;        // 1..16
-  int log2_table = 16;     // entries per level, 1..30
+  int features = 4;     // 1..16
+  int log2_table = 16;  // entries per level, 1..30
   int base_resolution = 16;
   double per_level_scale = 1.5;
 };
@@ -49,7 +49,7 @@ class HashGrid {
   void encode(Eigen::Index begin, Eigen::Index count, T* out, Eigen::Index stride) const;
   Matrix backwardLevelMajor(const T* d_features);
 
-  std::vector<T>& table() { return table_; }        // [level][entry][feature]
+  std::vector<T>& table() { return table_; }  // [level][entry][feature]
   std::vector<T>& gradients() { return grad_; }
   std::vector<uint8_t>& touched() { return touched_; }  // per [level][entry]
   void zeroGradients();
@@ -61,8 +61,9 @@ class HashGrid {
   std::vector<uint8_t> dense_;  // per level: direct indexing (the grid fits the table)
   std::vector<T> table_, grad_;
   std::vector<uint8_t> touched_;
-  Matrix positions_;            // forward's clamped positions (N x 3: one array per axis), for backward
-  std::vector<uint8_t> inside_;  // per sample: axes strictly inside (0, 1): the clamp passes the gradient
+  Matrix positions_;  // forward's clamped positions (N x 3: one array per axis), for backward
+  std::vector<uint8_t>
+      inside_;  // per sample: axes strictly inside (0, 1): the clamp passes the gradient
 };
 
 }  // namespace evkit::nerf

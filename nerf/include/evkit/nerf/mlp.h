@@ -53,12 +53,12 @@ class Mlp {
 // NeRF's positional encoding: gamma(p) = (p, sin(2^k pi p), cos(2^k pi p))_{k<L} per coordinate
 // (Mildenhall et al. 2020, eq. 4, with the raw input kept as in their code): dims 3 (1 + 2L).
 template <typename T>
-Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic> positionalEncoding(const Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>& p,
-                                                                   int frequencies);
+Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic> positionalEncoding(
+    const Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>& p, int frequencies);
 // Gradient with respect to p of <d_encoded, gamma(p)>.
 template <typename T>
-Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic> positionalEncodingBackward(const Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>& p,
-                                                                           int frequencies,
-                                                                           const Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>& d_encoded);
+Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic> positionalEncodingBackward(
+    const Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>& p, int frequencies,
+    const Eigen::Matrix<T, Eigen::Dynamic, Eigen::Dynamic>& d_encoded);
 
 }  // namespace evkit::nerf

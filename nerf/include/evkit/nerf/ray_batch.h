@@ -23,8 +23,8 @@
 namespace evkit::nerf {
 
 struct RayBatchOptions {
-  int samples = 8;           // stratified samples per ray
-  double near = 1.0;         // NDC near plane (scene units)
+  int samples = 8;    // stratified samples per ray
+  double near = 1.0;  // NDC near plane (scene units)
   // The field sees NDC (x, y, depth_scale z): below 1 its encoding has fewer cells along depth
   // than across the image (BeNeRF's views differ by millimetres, so depth is weakly observed).
   double depth_scale = 1.0;
@@ -41,7 +41,8 @@ class RayBatch {
     int pose = 0;      // index into the poses given to setRays
   };
 
-  RayBatch(const PinholeCamera& camera, const RayBatchOptions& options) : camera_(camera), options_(options) {}
+  RayBatch(const PinholeCamera& camera, const RayBatchOptions& options)
+      : camera_(camera), options_(options) {}
 
   // The rays and their samples: t_j = (j + jitter_j) / samples, jitter `samples` values per ray in
   // [0, 1) (nullptr: the centres, 0.5).
@@ -59,7 +60,8 @@ class RayBatch {
   // Accumulates the field's parameter gradients from d_colour (dL/d rendered colour, 3 values per
   // ray, the field's channels used) and returns dL/d pose for each pose (right perturbation
   // (rho, phi), as ndcPointPoseJacobian) when pose_gradients, otherwise nothing.
-  std::vector<Vector6> backward(RadianceField<T>& field, const std::vector<T>& d_colour, bool pose_gradients);
+  std::vector<Vector6> backward(RadianceField<T>& field, const std::vector<T>& d_colour,
+                                bool pose_gradients);
 
   int size() const { return static_cast<int>(rays_.size()); }
   int samplesPerRay() const { return samples_; }

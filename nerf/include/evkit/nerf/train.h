@@ -5,10 +5,9 @@
 // for a seed with one thread.
 #pragma once
 
+#include <opencv2/core.hpp>
 #include <utility>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 #include "evkit/nerf/adam.h"
 #include "evkit/nerf/camera.h"
@@ -44,15 +43,18 @@ struct FitReport {
 // sample positions in [0, 1) drawn by inverting the piecewise-constant density of `weights` over
 // the intervals [t_j, t_{j+1}) (t_n = 1), at the quantiles u (sorted, in [0, 1)); a small floor on
 // the weights keeps every interval reachable. Returned sorted.
-std::vector<float> importanceSamples(const std::vector<float>& t, const std::vector<float>& weights, const std::vector<float>& u);
+std::vector<float> importanceSamples(const std::vector<float>& t, const std::vector<float>& weights,
+                                     const std::vector<float>& u);
 
 template <typename T>
-FitReport fitField(RadianceField<T>& field, const PinholeCamera& camera, const std::vector<TrainingView>& views, const FitOptions& options);
+FitReport fitField(RadianceField<T>& field, const PinholeCamera& camera,
+                   const std::vector<TrainingView>& views, const FitOptions& options);
 
 // Renders a whole image (sample centres, no jitter; plus importance samples when asked), in batches
 // of rows.
 template <typename T>
-cv::Mat renderImage(RadianceField<T>& field, const PinholeCamera& camera, const SE3& pose, int samples, double near,
-                    const RenderSettings& settings = {}, int importance_samples = 0);
+cv::Mat renderImage(RadianceField<T>& field, const PinholeCamera& camera, const SE3& pose,
+                    int samples, double near, const RenderSettings& settings = {},
+                    int importance_samples = 0);
 
 }  // namespace evkit::nerf

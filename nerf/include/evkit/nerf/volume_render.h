@@ -24,27 +24,29 @@ struct RenderSettings {
 template <typename T>
 struct RayRender {
   T colour[3] = {0, 0, 0};
-  T opacity = 0;     // sum of weights
-  T depth = 0;       // sum w_j t_j (expected distance, in the ray's parameter)
-  size_t used = 0;   // samples visited before early termination
+  T opacity = 0;    // sum of weights
+  T depth = 0;      // sum w_j t_j (expected distance, in the ray's parameter)
+  size_t used = 0;  // samples visited before early termination
 };
 
 // colours: N x channels (row-major); t: sample positions along the ray (for depth), may be null.
 template <typename T>
-RayRender<T> renderRay(const T* sigma, const T* colours, const T* delta, const T* t, size_t n, int channels,
-                       const RenderSettings& settings);
+RayRender<T> renderRay(const T* sigma, const T* colours, const T* delta, const T* t, size_t n,
+                       int channels, const RenderSettings& settings);
 
 // Gradients of the ray's colour: given dL/dC (channels), writes dL/dsigma (n) and dL/dcolour
 // (n x channels); entries past `used` are zero. Needs the forward's output.
 template <typename T>
-void renderRayBackward(const T* sigma, const T* colours, const T* delta, size_t n, int channels, const RenderSettings& settings,
-                       const RayRender<T>& forward, const T* d_colour, T* d_sigma, T* d_colours);
+void renderRayBackward(const T* sigma, const T* colours, const T* delta, size_t n, int channels,
+                       const RenderSettings& settings, const RayRender<T>& forward,
+                       const T* d_colour, T* d_sigma, T* d_colours);
 
 // The grey value of a colour (BGR) as the simulator and BeNeRF's code take it: 0.299 R + 0.587 G +
 // 0.114 B, and the shared log mapping log(grey + eps) with its derivative 1 / (grey + eps).
 template <typename T>
 T greyOf(const T* colour, int channels) {
-  return channels == 1 ? colour[0] : T(0.114) * colour[0] + T(0.587) * colour[1] + T(0.299) * colour[2];
+  return channels == 1 ? colour[0]
+                       : T(0.114) * colour[0] + T(0.587) * colour[1] + T(0.299) * colour[2];
 }
 template <typename T>
 void greyBackward(T d_grey, int channels, T* d_colour) {

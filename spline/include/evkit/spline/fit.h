@@ -50,14 +50,15 @@ struct TrajectoryErrors {
 // Umeyama's method (IEEE TPAMI 1991) on the positions: SE(3) (rotation + translation) or Sim(3)
 // (with scale). With fewer than 3 poses, or positions that do not span a plane, only the mean
 // translation is aligned. Throws std::invalid_argument when the sizes differ or are empty.
-TrajectoryErrors compareTrajectories(const std::vector<SE3>& estimate, const std::vector<SE3>& truth,
-                                     Alignment alignment);
+TrajectoryErrors compareTrajectories(const std::vector<SE3>& estimate,
+                                     const std::vector<SE3>& truth, Alignment alignment);
 
 // The aligning similarity: truth ~ s R estimate + t (s = 1 unless Sim(3)).
 struct Similarity {
   double scale = 1.0;
   SE3 transform;
 };
-Similarity alignPositions(const std::vector<Vector3>& estimate, const std::vector<Vector3>& truth, Alignment alignment);
+Similarity alignPositions(const std::vector<Vector3>& estimate, const std::vector<Vector3>& truth,
+                          Alignment alignment);
 
 }  // namespace evkit

@@ -38,7 +38,7 @@ Vector3 logSO3(const Quaternion& q);
 Vector3 logSO3(const Matrix3& R);
 
 Matrix3 leftJacobianSO3(const Vector3& phi);
-Matrix3 leftJacobianInverseSO3(const Vector3& phi);   // singular at theta = 2 pi only
+Matrix3 leftJacobianInverseSO3(const Vector3& phi);  // singular at theta = 2 pi only
 Matrix3 rightJacobianSO3(const Vector3& phi);
 Matrix3 rightJacobianInverseSO3(const Vector3& phi);
 

@@ -51,7 +51,8 @@ class Trajectory {
 
   // Pose at normalised time s in [0, 1] (clamped). Optional outputs: Jacobians with respect to the
   // knots, and the body velocity T^-1 dT/ds as a twist (rho, phi) per unit of s.
-  SE3 evaluate(double s, KnotJacobians* jacobians = nullptr, Vector6* body_velocity = nullptr) const;
+  SE3 evaluate(double s, KnotJacobians* jacobians = nullptr,
+               Vector6* body_velocity = nullptr) const;
   // Pose at a time in µs (exact integer offset, then normalised).
   SE3 poseAt(int64_t t_us, KnotJacobians* jacobians = nullptr) const;
   double normalizedTime(int64_t t_us) const;

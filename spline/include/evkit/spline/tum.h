@@ -15,6 +15,7 @@ std::vector<StampedPose> readTum(const std::string& path);
 // Written to a temporary name, then renamed.
 void writeTum(const std::string& path, const std::vector<StampedPose>& poses);
 // Samples a trajectory at the given times.
-std::vector<StampedPose> sampleTrajectory(const Trajectory& trajectory, const std::vector<int64_t>& times_us);
+std::vector<StampedPose> sampleTrajectory(const Trajectory& trajectory,
+                                          const std::vector<int64_t>& times_us);
 
 }  // namespace evkit

@@ -60,11 +60,12 @@ struct ShakeOptions {
 
 // Random smooth camera shake over [t_begin, t_end]: a cubic B-spline on SE(3) with random knots,
 // scaled so that blurLengthPx equals options.blur_px, and moved so that T(mid) = identity.
-Trajectory makeShake(const Scene& scene, const Calibration& camera, int width, int height, int64_t t_begin, int64_t t_end,
-                     const ShakeOptions& options);
+Trajectory makeShake(const Scene& scene, const Calibration& camera, int width, int height,
+                     int64_t t_begin, int64_t t_end, const ShakeOptions& options);
 
 // The longest image-space path (pixels) of the scene points seen on an 8x6 grid at mid-exposure.
-double blurLengthPx(const Trajectory& trajectory, const Scene& scene, const Calibration& camera, int width, int height);
+double blurLengthPx(const Trajectory& trajectory, const Scene& scene, const Calibration& camera,
+                    int width, int height);
 
 struct SynthOptions {
   int width = 346, height = 260;
@@ -99,7 +100,8 @@ struct SynthReport {
 // sharp frames (<t_us>.png), poses.txt (TUM, T_world_cam), knots.txt (the spline's knots, TUM at
 // the knot index), depth.npy (float32 metres at mid-exposure) and info.txt. The folder appears
 // complete or not at all.
-SynthReport writeObservation(const Scene& scene, const SynthOptions& options, const std::string& dir);
+SynthReport writeObservation(const Scene& scene, const SynthOptions& options,
+                             const std::string& dir);
 
 // A named suite: observation folders <dir>/<name>.
 //  - standard: the 5 presets x blur {15, 40} px, noiseless events, C = 0.2 (<scene>_blur<px>);
@@ -114,7 +116,7 @@ struct SuiteEntry {
   std::string group;  // "standard", "noisy" or "hard"
   std::string scene;  // preset
   double blur_px = 30;
-  std::string what;   // what makes it hard or noisy (empty for standard entries)
+  std::string what;  // what makes it hard or noisy (empty for standard entries)
   double gain = 1.0;
   double contrast = 0.2;
   double sigma = 0, shot_noise_hz = 0, leak_hz = 0;

@@ -9,11 +9,10 @@
 #pragma once
 
 #include <memory>
+#include <opencv2/core.hpp>
 #include <optional>
 #include <string>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 #include "evkit/events/calibration.h"
 #include "evkit/spline/lie.h"
@@ -22,15 +21,16 @@ namespace evkit::synth {
 
 // A texture image covering [0,1]^2 of an object's surface, sampled bilinearly.
 struct Texture {
-  cv::Mat image;  // CV_32FC1 or CV_32FC3, linear [0,1]
+  cv::Mat image;                               // CV_32FC1 or CV_32FC3, linear [0,1]
   cv::Vec3f sample(double s, double t) const;  // s, t in [0,1]; clamped at the border
 };
 
 struct TextureSpec {
-  std::string kind = "noise";  // noise | stripes | checker | text | image
-  int resolution = 1024;       // texture image size (square)
+  std::string kind = "noise";          // noise | stripes | checker | text | image
+  int resolution = 1024;               // texture image size (square)
   double mean = 0.45, contrast = 0.7;  // output range [mean - contrast/2, mean + contrast/2]
-  double scale = 0.08;         // noise: finest feature size as a fraction of the texture; stripes/checker: period
+  double scale =
+      0.08;  // noise: finest feature size as a fraction of the texture; stripes/checker: period
   double angle = 0.3;          // stripes: direction (rad)
   std::string text = "evkit";  // text
   std::string path;            // image
@@ -41,8 +41,15 @@ Texture makeTexture(const TextureSpec& spec);
 
 struct Rectangle {
   Rectangle() = default;
-  Rectangle(const Vector3& c, const Vector3& u, const Vector3& v, double w, double h, std::shared_ptr<const Texture> tex)
-      : center(c), axis_u(u), axis_v(v), normal(u.cross(v)), width(w), height(h), texture(std::move(tex)) {}
+  Rectangle(const Vector3& c, const Vector3& u, const Vector3& v, double w, double h,
+            std::shared_ptr<const Texture> tex)
+      : center(c),
+        axis_u(u),
+        axis_v(v),
+        normal(u.cross(v)),
+        width(w),
+        height(h),
+        texture(std::move(tex)) {}
   Vector3 center;  // world
   Vector3 axis_u;  // unit, along the texture's s (width)
   Vector3 axis_v;  // unit, along t (height)
@@ -64,7 +71,8 @@ struct Scene {
   double background = 0.1;  // radiance of rays that hit nothing
   bool colour = false;
 
-  void addBox(const Vector3& center, const Vector3& size, const Vector3& rotation, const std::shared_ptr<const Texture>& texture);
+  void addBox(const Vector3& center, const Vector3& size, const Vector3& rotation,
+              const std::shared_ptr<const Texture>& texture);
 };
 
 struct RenderOptions {
@@ -73,7 +81,7 @@ struct RenderOptions {
 
 // Renders radiance (and, if asked, the depth along z of the first hit at each pixel centre; 0 where
 // nothing is hit) at a pose. Parallel over rows.
-cv::Mat render(const Scene& scene, const Calibration& camera, int width, int height, const SE3& T_world_cam,
-               const RenderOptions& options = {}, cv::Mat* depth = nullptr);
+cv::Mat render(const Scene& scene, const Calibration& camera, int width, int height,
+               const SE3& T_world_cam, const RenderOptions& options = {}, cv::Mat* depth = nullptr);
 
 }  // namespace evkit::synth
