@@ -14,15 +14,11 @@ namespace evkit {
 
 double measureBlurLength(const Observation& obs) { return measureBlur(obs, obs.contrast).blur_px; }
 
-BlurMeasurement measureBlur(const Observation& obs,
-                            const std::optional<std::pair<double, double>>& contrast,
+BlurMeasurement measureBlur(const Observation& obs, const std::optional<Contrast>& contrast,
                             const LogMapping& log) {
   EdiOptions edi_options;
   edi_options.use_observation_contrast = false;
-  if (contrast) {
-    edi_options.contrast_on = contrast->first;
-    edi_options.contrast_off = contrast->second;
-  }
+  edi_options.contrast = contrast;
   EdiDeblurrer edi{edi_options};
   DeblurRequest request;
   request.times_us = {obs.blurry.midExposure()};

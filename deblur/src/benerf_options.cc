@@ -113,13 +113,13 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
         .custom({"contrast", "C[,C_off]", "the thresholds of the event term (over contrast.txt)",
                  [](O& o, const std::string& v) { o.contrast = contrastSetting("benerf", v); },
                  [](const O& o) {
-                   if (o.contrast && !(o.contrast->first > 0 && o.contrast->second > 0))
+                   if (o.contrast && !(o.contrast->on > 0 && o.contrast->off > 0))
                      throw Error("benerf: contrast must be positive");
                  },
                  [](const O& o) {
-                   return o.contrast ? shortNumber(o.contrast->first) + "," +
-                                           shortNumber(o.contrast->second)
-                                     : "none";
+                   return o.contrast
+                              ? shortNumber(o.contrast->on) + "," + shortNumber(o.contrast->off)
+                              : "none";
                  }})
         .flag("estimate_contrast", &O::estimate_contrast,
               "without thresholds, take EDI's searched c when it lies inside its range")

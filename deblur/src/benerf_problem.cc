@@ -69,9 +69,9 @@ BenerfProblem<T>::BenerfProblem(const Observation& obs, const BenerfOptions& opt
   } else {
     field_ = nerf::makeMlpField<T>(options.mlp, channels_, options.seed);
   }
-  if (const auto& thresholds = options.contrast ? options.contrast : obs.contrast) {
-    c_on_ = thresholds->first;
-    c_off_ = thresholds->second;
+  if (const auto thresholds = resolveContrast(options.contrast, obs)) {
+    c_on_ = thresholds->on;
+    c_off_ = thresholds->off;
     known_contrast_ = true;
   }
   normalised_ = !known_contrast_ || options.event_form == BenerfOptions::EventForm::kNormalised;

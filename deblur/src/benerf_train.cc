@@ -67,7 +67,7 @@ struct Start {
 Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& result) {
   Start s{given, given.virtual_views, 0};
   BenerfOptions& o = s.options;
-  if (!o.contrast) o.contrast = obs.contrast;
+  o.contrast = resolveContrast(o.contrast, obs);
   const bool estimate =
       !o.contrast && o.estimate_contrast && o.event_form == BenerfOptions::EventForm::kAuto;
   if (s.views <= 0 || o.init == BenerfOptions::Init::kEvents || estimate) {
@@ -75,7 +75,7 @@ Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& 
     s.blur_px = m.blur_px;
     result.parameters["blur_px_measured"] = s.blur_px;
     if (estimate && m.inside) {
-      o.contrast = std::make_pair(m.c_on, m.c_off);
+      o.contrast = Contrast{m.c_on, m.c_off};
       result.parameters["contrast_estimated"] = m.c_on;
     }
   }

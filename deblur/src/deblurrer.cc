@@ -7,7 +7,7 @@
 
 namespace evkit {
 
-std::pair<double, double> contrastSetting(const std::string& method, const std::string& value) {
+Contrast contrastSetting(const std::string& method, const std::string& value) {
   const size_t comma = value.find(',');
   const double on = settingNumber(method, "contrast", value.substr(0, comma));
   const double off =
@@ -15,6 +15,13 @@ std::pair<double, double> contrastSetting(const std::string& method, const std::
   if (!(on > 0) || !(off > 0))
     throw Error(method + ": contrast must be positive (contrast=C or C_on,C_off)");
   return {on, off};
+}
+
+std::optional<Contrast> resolveContrast(const std::optional<Contrast>& setting,
+                                        const Observation& obs, bool use_observation) {
+  if (setting) return setting;
+  if (use_observation) return obs.contrast;
+  return std::nullopt;
 }
 
 DeblurRequest defaultRequest(const Observation& obs, int n) {

@@ -163,12 +163,10 @@ DeblurResult EdiDeblurrer::run(const Observation& obs, const DeblurRequest& requ
   result.timings_s["model"] = seconds(start);
   double c_on, c_off;
   bool searched = false;
-  if (options_.contrast_on) {
-    c_on = *options_.contrast_on;
-    c_off = options_.contrast_off.value_or(c_on);
-  } else if (options_.use_observation_contrast && obs.contrast) {
-    c_on = obs.contrast->first;
-    c_off = obs.contrast->second;
+  if (const auto given =
+          resolveContrast(options_.contrast, obs, options_.use_observation_contrast)) {
+    c_on = given->on;
+    c_off = given->off;
   } else {
     const auto s = std::chrono::steady_clock::now();
     const cv::Mat grey = toGrey(obs.blurry.image);
@@ -199,19 +197,15 @@ const SettingsTable<EdiOptions>& ediSettings() {
   static const SettingsTable<O> table = [] {
     SettingsTable<O> t("edi");
     t.custom({"contrast", "C[,C_off]", "fixed thresholds (over contrast.txt and the search)",
-              [](O& o, const std::string& v) {
-                std::tie(o.contrast_on, o.contrast_off) = contrastSetting("edi", v);
-              },
+              [](O& o, const std::string& v) { o.contrast = contrastSetting("edi", v); },
               [](const O& o) {
-                if ((o.contrast_on && !(*o.contrast_on > 0)) ||
-                    (o.contrast_off && !(*o.contrast_off > 0))) {
+                if (o.contrast && !(o.contrast->on > 0 && o.contrast->off > 0)) {
                   throw Error("edi: contrast must be positive");
                 }
               },
               [](const O& o) {
-                return o.contrast_on ? shortNumber(*o.contrast_on) + "," +
-                                           shortNumber(o.contrast_off.value_or(*o.contrast_on))
-                                     : "none";
+                return o.contrast ? shortNumber(o.contrast->on) + "," + shortNumber(o.contrast->off)
+                                  : "none";
               }})
         .custom({"search", "0|1", "1: search c even when contrast.txt gives the thresholds",
                  [](O& o, const std::string& v) {

@@ -80,7 +80,7 @@ Observation loadObservation(const std::string& dir) {
     const std::vector<double> c = readNumbers(contrast.string(), 1, 2, "'C_on C_off' or 'C'");
     if (!(c.front() > 0) || !(c.back() > 0))
       throwAtLine(contrast.string(), 1, "thresholds must be positive");
-    obs.contrast = std::make_pair(c.front(), c.back());
+    obs.contrast = Contrast{c.front(), c.back()};
   }
   const fs::path gt = fs::path(dir) / "gt";
   if (fs::is_directory(gt)) {
@@ -113,8 +113,7 @@ void saveObservation(const Observation& obs, const std::string& dir) {
   writeRecording(tmp + "/events.h5", rec);
   writeCalibration(tmp + "/calib.txt", obs.camera);
   if (obs.contrast)
-    std::ofstream(tmp + "/contrast.txt")
-        << obs.contrast->first << ' ' << obs.contrast->second << '\n';
+    std::ofstream(tmp + "/contrast.txt") << obs.contrast->on << ' ' << obs.contrast->off << '\n';
   out.commit();
 }
 

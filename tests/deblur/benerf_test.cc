@@ -198,7 +198,7 @@ TEST(Benerf, ThresholdsComeFromTheSettingsContrastTxtOrEdisSearch) {
   o.beta = -1;
   obs.contrast.reset();
   EXPECT_TRUE((BenerfProblem<float>(obs, o, 3).normalisedEvents()));
-  o.contrast = std::make_pair(0.25, 0.3);
+  o.contrast = Contrast{0.25, 0.3};
   const BenerfProblem<float> with_setting(obs, o, 3);
   EXPECT_FALSE(with_setting.normalisedEvents());
   EXPECT_DOUBLE_EQ(with_setting.beta(), 0.1);
@@ -387,7 +387,7 @@ TEST(Benerf, NoNanOnBlackSaturatedTexturelessOrEventFreeInputs) {
       obs.events = EventStore(SensorSize{32, 24});
       if (with_events) {
         for (int k = 0; k < 50; ++k) obs.events.push_back(1000 + 400 * k, 5, 7, k % 2 ? 1 : -1);
-        obs.contrast = std::make_pair(0.2, 0.2);
+        obs.contrast = Contrast{0.2, 0.2};
       }
       const DeblurResult r = BenerfDeblurrer(o).run(obs, DeblurRequest{{1000, 11000, 21000}, {}});
       ASSERT_EQ(r.frames.size(), 3u);

@@ -211,7 +211,7 @@ TEST(Synth, HardCasesSaturateDarkenAndDropEvents) {
   // Noisy: the contrast file keeps the nominal C while the pixels' thresholds vary.
   auto [noisy, noisy_obs] = make("hard_noisy");
   ASSERT_TRUE(noisy_obs.contrast.has_value());
-  EXPECT_DOUBLE_EQ(noisy_obs.contrast->first, 0.2);
+  EXPECT_DOUBLE_EQ(noisy_obs.contrast->on, 0.2);
   EXPECT_NE(test::readText(dir / "hard_noisy/gt/info.txt").find("shot_noise_hz 5"),
             std::string::npos);
 }

@@ -80,7 +80,7 @@ struct BenerfOptions {
   // the direct form; at an end of the range (the search's energy was monotonic, as on low-texture
   // scenes) the events are normalised. Measured without thresholds at `fast` (BENCHMARKS.md):
   // standard suite 34.41 -> 34.97 dB, noisy 34.48 -> 34.72.
-  std::optional<std::pair<double, double>> contrast;
+  std::optional<Contrast> contrast;
   bool estimate_contrast = true;
   // The event term's form: kDirect compares C-weighted events with the log change (the authors'
   // code on synthetic data; needs known thresholds), kNormalised compares both L2-normalised over
@@ -166,8 +166,7 @@ struct BlurMeasurement {
   bool searched = false;  // c from EDI's search
   bool inside = false;    // ... and not at an end of the search's range
 };
-BlurMeasurement measureBlur(const Observation& obs,
-                            const std::optional<std::pair<double, double>>& contrast,
+BlurMeasurement measureBlur(const Observation& obs, const std::optional<Contrast>& contrast,
                             const LogMapping& log = {});
 // n from the blur length: about one view per 2 px of motion, within [5, 19].
 int virtualViewsFor(double blur_px);

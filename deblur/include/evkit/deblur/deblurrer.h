@@ -34,7 +34,13 @@ struct DeblurResult {
 };
 
 // A `contrast=C[,C_off]` setting as (C_on, C_off), both positive; throws evkit::Error otherwise.
-std::pair<double, double> contrastSetting(const std::string& method, const std::string& value);
+Contrast contrastSetting(const std::string& method, const std::string& value);
+
+// The thresholds a method works with, decided in one place: its setting, else the observation's
+// contrast.txt (when use_observation), else none, and the method estimates them (EDI by its
+// sharpness search, BeNeRF through EDI's).
+std::optional<Contrast> resolveContrast(const std::optional<Contrast>& setting,
+                                        const Observation& obs, bool use_observation = true);
 
 class Deblurrer {
  public:

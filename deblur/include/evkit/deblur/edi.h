@@ -22,8 +22,7 @@
 namespace evkit {
 
 struct EdiOptions {
-  std::optional<double> contrast_on,
-      contrast_off;  // fixed thresholds; else contrast.txt; else search
+  std::optional<Contrast> contrast;  // fixed thresholds; else contrast.txt; else the search
   bool use_observation_contrast = true;
   double search_min = 0.1, search_max = 0.5;  // the published range for DAVIS data
   int search_grid = 21;                       // coarse grid, then golden-section refinement

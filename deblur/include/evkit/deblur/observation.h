@@ -13,11 +13,17 @@
 
 namespace evkit {
 
+// The camera's contrast thresholds, in log intensity: an ON event per rise of `on`, an OFF event
+// per fall of `off`.
+struct Contrast {
+  double on = 0, off = 0;
+};
+
 struct Observation {
   Frame blurry;  // image + exposure_start_us / exposure_end_us + bit depth
   EventStore events;
   Calibration camera;
-  std::optional<std::pair<double, double>> contrast;  // C_on, C_off when known
+  std::optional<Contrast> contrast;  // when known (contrast.txt)
   // Ground truth (synthetic data): sharp frames (their exposure_start_us is their time) and poses.
   std::vector<Frame> gt_frames;
   std::vector<StampedPose> gt_poses;
