@@ -40,6 +40,16 @@ class H5Handle {
   hid_t id_ = H5I_INVALID_HID;
 };
 
+// What the reader and the writer of evkit's layout share.
+inline constexpr hsize_t kEventChunk = hsize_t{1}
+                                       << 17;    // elements per HDF5 chunk of an event column
+inline constexpr unsigned kBloscFilter = 32001;  // registered HDF5 filter id of Blosc
+inline constexpr unsigned kBloscLz4 = 1;         // Blosc compressor code of LZ4
+inline constexpr int64_t kMaxMsIndexEntries = 100'000'000;  // > 27 h of recording: no index
+inline int64_t floorDiv(int64_t a, int64_t b) {
+  return a / b - ((a % b != 0) && ((a < 0) != (b < 0)));
+}
+
 // Silences HDF5's own error-stack printing; evkit reports errors itself.
 void silenceHdf5Errors();
 
