@@ -125,7 +125,7 @@ class Aedat31Reader final : public EventReader {
       const int32_t capacity = loadI32(h + 16);
       const int32_t number = loadI32(h + 20);
       if (event_size_ <= 0 || capacity < 0 || number < 0 || number > capacity || overflow_ < 0 ||
-          ts_offset < 0 || ts_offset + 4 > event_size_) {
+          ts_offset < 0 || int64_t{ts_offset} + 4 > event_size_) {
         file_.failAt(packet_offset_, "invalid packet header (event size " +
                                          std::to_string(event_size_) + ", capacity " +
                                          std::to_string(capacity) + ", number " +
