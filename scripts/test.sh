@@ -26,6 +26,9 @@ if [ "${EVKIT_SKIP_SANITIZE:-0}" != "1" ]; then
     -DEVKIT_BUILD_BENCHMARKS=OFF -DEVKIT_SANITIZE=ON -DEVKIT_WERROR=ON -DCMAKE_UNITY_BUILD=ON \
     -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O2 -g1 -DNDEBUG"  # -g1: line tables for the reports, a quicker build
   cmake --build build-asan -j "$jobs"
+  # libhdf5 1.10.8 leaks on its own error paths for corrupt files (tests/fuzz/lsan.supp says why);
+  # evkit's HDF5 leaks still show, as descriptors left open (tests/events/bad_files_test.cc).
   ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
+    LSAN_OPTIONS="suppressions=$PWD/tests/fuzz/lsan.supp" \
     ctest --test-dir build-asan --output-on-failure -j "$jobs"
 fi
