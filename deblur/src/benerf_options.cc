@@ -211,8 +211,6 @@ BenerfOptions benerfOptions(const MethodSettings& settings) {
   MethodSettings rest = settings;
   rest.erase("budget");
   rest.erase("preset");
-  if (rest.count("budget_seconds") != 0)
-    throw Error("benerf: unknown setting 'budget_seconds' (say budget=60s)");
   benerfSettings().apply(o, rest);
   if (o.field == BenerfOptions::FieldKind::kMlp && !settings.count("field_lr"))
     o.field_lr = 5e-4;  // the paper's rate for its MLP

@@ -34,26 +34,25 @@ bool undefinedAddress(uint64_t address, int offset_bytes) {
 
 }  // namespace
 
-Hdf5Precheck::Hdf5Precheck(std::string path) : path_(std::move(path)) {
-  BinaryFile file(path_);
-  file_size_ = file.size();
+Hdf5Precheck::Hdf5Precheck(std::string path) : path_(std::move(path)), file_(path_) {
+  file_size_ = file_.size();
   // The superblock sits at 0, 512, 1024, 2048, ... (a user block may come first).
   int64_t at = -1;
   for (int64_t candidate = 0; candidate + 8 <= file_size_;
        candidate = candidate == 0 ? 512 : candidate * 2) {
     uint8_t signature[8];
-    file.seek(candidate);
-    file.readExact(signature, 8, "the HDF5 signature");
+    file_.seek(candidate);
+    file_.readExact(signature, 8, "the HDF5 signature");
     if (std::memcmp(signature, kSignature, 8) == 0) {
       at = candidate;
       break;
     }
   }
-  if (at < 0) file.failAt(0, "no HDF5 superblock signature (not an HDF5 file)");
+  if (at < 0) file_.failAt(0, "no HDF5 superblock signature (not an HDF5 file)");
 
   uint8_t sb[128] = {};
-  file.seek(at);
-  const size_t got = file.read(sb, sizeof(sb));
+  file_.seek(at);
+  const size_t got = file_.read(sb, sizeof(sb));
   const int version = sb[8];
   int offset_bytes = 0;
   size_t fields = 0;  // where the base address starts
@@ -66,21 +65,21 @@ Hdf5Precheck::Hdf5Precheck(std::string path) : path_(std::move(path)) {
     length_bytes_ = sb[10];
     fields = 12;
   } else {
-    file.failAt(at + 8, "unknown HDF5 superblock version " + std::to_string(version));
+    file_.failAt(at + 8, "unknown HDF5 superblock version " + std::to_string(version));
   }
   const auto usable = [](int bytes) { return bytes == 2 || bytes == 4 || bytes == 8; };
   if (!usable(offset_bytes) || !usable(length_bytes_)) {
-    file.failAt(at + 9, "HDF5 superblock with " + std::to_string(offset_bytes) +
-                            "-byte addresses and " + std::to_string(length_bytes_) +
-                            "-byte lengths");
+    file_.failAt(at + 9, "HDF5 superblock with " + std::to_string(offset_bytes) +
+                             "-byte addresses and " + std::to_string(length_bytes_) +
+                             "-byte lengths");
   }
   // v0/v1: base, free space, end of file, driver info, then the root group's symbol table entry
   // (link name offset, object header address); v2/v3: base, extension, end of file, root group.
   const size_t root_field = fields + static_cast<size_t>(offset_bytes) * (version <= 1 ? 5 : 3);
-  if (root_field + offset_bytes > got) file.failAt(at, "truncated HDF5 superblock");
+  if (root_field + offset_bytes > got) file_.failAt(at, "truncated HDF5 superblock");
   base_ = loadLe(sb + fields, offset_bytes);
   if (base_ > static_cast<uint64_t>(file_size_))
-    file.failAt(at + static_cast<int64_t>(fields), "HDF5 base address past the end of the file");
+    file_.failAt(at + static_cast<int64_t>(fields), "HDF5 base address past the end of the file");
   offset_bytes_ = offset_bytes;
   checkObjectHeader(loadLe(sb + root_field, offset_bytes), "the root group");
 }
@@ -101,11 +100,10 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
       fail(cited, "a chunk of " + std::to_string(length) + " bytes (implausible)");
     return static_cast<int64_t>(base_ + relative);
   };
-  BinaryFile file(path_);
   const int64_t at = inFile(address, 16, static_cast<int64_t>(base_));
-  file.seek(at);
+  file_.seek(at);
   uint8_t h[48] = {};
-  const size_t got = file.read(h, sizeof(h));
+  const size_t got = file_.read(h, sizeof(h));
   int version = 0;
   bool creation_order = false;  // v2: each message carries a 2-byte creation index
   int64_t messages_at = 0;
@@ -145,8 +143,8 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
     const Chunk c = pending.back();
     pending.pop_back();
     chunk.resize(c.bytes);
-    file.seek(c.at);
-    file.readExact(chunk.data(), chunk.size(), "an object header chunk");
+    file_.seek(c.at);
+    file_.readExact(chunk.data(), chunk.size(), "an object header chunk");
     for (size_t pos = 0; pos + header_bytes <= chunk.size();) {
       const int type = version == 1 ? loadLe(&chunk[pos], 2) : chunk[pos];
       const uint64_t size = version == 1 ? loadLe(&chunk[pos + 2], 2) : loadLe(&chunk[pos + 1], 2);
@@ -202,10 +200,9 @@ void Hdf5Precheck::checkLocalHeap(uint64_t address, const std::string& what) con
          "address " + std::to_string(address) + " lies outside the file");
   }
   const int64_t at = static_cast<int64_t>(base_ + address);
-  BinaryFile file(path_);
-  file.seek(at);
+  file_.seek(at);
   uint8_t h[40] = {};
-  file.readExact(h, prefix, "a local heap prefix");
+  file_.readExact(h, prefix, "a local heap prefix");
   if (std::memcmp(h, "HEAP", 4) != 0) fail(at, "no HEAP signature");
   const uint64_t bytes = loadLe(h + 8, length_bytes_);
   const uint64_t segment = loadLe(h + 8 + 2 * length_bytes_, offset_bytes_);
@@ -282,7 +279,6 @@ void Hdf5Precheck::checkChunkIndex(uint64_t address, int rank, const std::string
   const size_t header = 8 + 2 * static_cast<size_t>(offset_bytes_);
   const size_t key = 8 + 8 * static_cast<size_t>(rank);
   const size_t entry = key + static_cast<size_t>(offset_bytes_);
-  BinaryFile file(path_);
   std::vector<uint64_t> pending = {address};
   std::set<uint64_t> seen = {address};
   std::vector<uint8_t> node;
@@ -293,8 +289,8 @@ void Hdf5Precheck::checkChunkIndex(uint64_t address, int rank, const std::string
     if (node_address >= limit || header > limit - node_address)
       fail(static_cast<int64_t>(base_), "a node outside the file");
     node.resize(header);
-    file.seek(at);
-    file.readExact(node.data(), header, "a B-tree node");
+    file_.seek(at);
+    file_.readExact(node.data(), header, "a B-tree node");
     if (std::memcmp(node.data(), "TREE", 4) != 0 || node[4] != 1)
       fail(at, "not a chunk B-tree node");
     const int level = node[5];
@@ -303,7 +299,7 @@ void Hdf5Precheck::checkChunkIndex(uint64_t address, int rank, const std::string
     if (bytes > limit - node_address)
       fail(at, std::to_string(entries) + " entries run past the end of the file");
     node.resize(bytes);
-    file.readExact(node.data() + header, bytes - header, "B-tree node entries");
+    file_.readExact(node.data() + header, bytes - header, "B-tree node entries");
     for (uint64_t i = 0; i < entries; ++i) {
       const uint8_t* k = &node[header + i * entry];
       const uint64_t child = loadLe(k + key, offset_bytes_);

@@ -10,6 +10,8 @@
 #include <cstdint>
 #include <string>
 
+#include "binary_file.h"
+
 namespace evkit::detail {
 
 // The largest object header chunk, local heap or data chunk evkit lets libhdf5 allocate: real
@@ -38,6 +40,7 @@ class Hdf5Precheck {
   void checkChunkIndex(uint64_t address, int rank, const std::string& what) const;
 
   std::string path_;
+  mutable BinaryFile file_;  // the checks read it at the offsets they need
   int64_t file_size_ = 0;
   uint64_t base_ = 0;
   int offset_bytes_ = 0;  // 2, 4 or 8: the width of an address

@@ -123,12 +123,6 @@ class SettingsTable {
   void check(const Options& options) const {
     for (const Entry& e : entries_) e.check(options);
   }
-  bool has(const std::string& key) const {
-    for (const Entry& e : entries_) {
-      if (e.key == key) return true;
-    }
-    return false;
-  }
   // "KEY (TYPE, default VALUE): HELP" per line.
   std::string help(const Options& defaults) const {
     std::string text;
