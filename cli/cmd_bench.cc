@@ -7,10 +7,11 @@
 #include <iostream>
 #include <set>
 
-#include "bench.h"
 #include "common.h"
+#include "deblur_runner.h"
 #include "evkit/base/error.h"
 #include "evkit/deblur/observation.h"
+#include "evkit/harness/speed_error.h"
 #include "evkit/synth/generator.h"
 
 namespace evkit::cli {
@@ -120,9 +121,14 @@ int runBench(const Args& args) {
     for (const char* m : {"benerf", "benerf-mlp"})
       extra[m]["threads"] = std::to_string(vm["threads"].as<int>());
   }
-  const std::vector<BenchRun> runs = benchRuns(
-      splitList(vm["methods"].as<std::string>()), splitList(vm["budgets"].as<std::string>()),
-      splitList(vm["mlp-budgets"].as<std::string>()), extra);
+  std::vector<BenchRun> runs;
+  try {
+    runs = benchRuns(splitList(vm["methods"].as<std::string>()),
+                     splitList(vm["budgets"].as<std::string>()),
+                     splitList(vm["mlp-budgets"].as<std::string>()), extra);
+  } catch (const Error& e) {
+    throw UsageError(e.what());
+  }
   const std::string out = vm["out"].as<std::string>();
   const std::string data = vm.count("data") ? vm["data"].as<std::string>() : out + "/suite";
   const bool unknown_contrast = vm["unknown-contrast"].as<bool>();
@@ -159,8 +165,11 @@ int runBench(const Args& args) {
       ++step;
       std::fprintf(stderr, "[%zu/%zu] %-18s %-10s %-8s ...\n", step, total, e.name.c_str(),
                    run.method.c_str(), run.budget.c_str());
-      BenchRow row = runBench(*obs, e.group, e.name, e.what, run,
-                              out + "/runs/" + e.name + "/" + runFolder(run));
+      TrainingProgress progress(run.method + " training");
+      BenchRow row = evkit::runBench(*obs, e.group, e.name, e.what, run,
+                                     out + "/runs/" + e.name + "/" + runFolder(run), nullptr,
+                                     progress.callback());
+      progress.finish();
       std::erase_if(rows, [&](const BenchRow& r) { return r.key() == key; });
       rows.push_back(row);
       if (row.ok()) {

@@ -10,12 +10,13 @@
 #include <opencv2/imgcodecs.hpp>
 #include <tuple>
 
-#include "bench.h"
 #include "common.h"
+#include "deblur_runner.h"
 #include "evkit/base/error.h"
 #include "evkit/deblur/observation.h"
 #include "evkit/events/accumulate.h"
 #include "evkit/events/random_events.h"
+#include "evkit/harness/speed_error.h"
 #include "evkit/synth/generator.h"
 
 namespace evkit::cli {
@@ -136,8 +137,10 @@ int runDemo(const Args& args) {
   std::vector<MethodReport> reports;
   for (const BenchRun& run : runs) {
     MethodReport report;
-    BenchRow row = runBench(obs, "demo", vm["preset"].as<std::string>(), "", run,
-                            (dir / run.method).string(), &report);
+    TrainingProgress progress(run.method + " training");
+    BenchRow row = evkit::runBench(obs, "demo", vm["preset"].as<std::string>(), "", run,
+                                   (dir / run.method).string(), &report, progress.callback());
+    progress.finish();
     if (!row.ok())
       std::cerr << "evkit demo: " << run.method << " " << row.status
                 << " (the other results are kept)\n";

@@ -185,11 +185,4 @@ std::pair<int, int> parseImageSize(const std::string& text, const std::string& o
   return {w, h};
 }
 
-std::string fixedOrDash(double v, int decimals) {
-  if (!std::isfinite(v)) return "-";
-  char buf[48];
-  std::snprintf(buf, sizeof(buf), "%.*f", decimals, v);
-  return buf;
-}
-
 }  // namespace evkit::cli

@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "evkit/base/text.h"
 #include "evkit/events/io.h"
 
 namespace evkit::cli {
@@ -54,8 +55,6 @@ std::vector<std::string> splitList(const std::string& list);
 // "346x260" -> {346, 260}, each side in [min_side, max_side]; throws UsageError naming the option.
 std::pair<int, int> parseImageSize(const std::string& text, const std::string& option, int min_side,
                                    int max_side);
-// v with `decimals` decimals, or "-" when it is not finite (a table cell).
-std::string fixedOrDash(double v, int decimals);
 
 // "1605537493.718345 s" and "1,234,567".
 std::string formatSeconds(int64_t us);

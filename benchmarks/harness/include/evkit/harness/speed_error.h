@@ -1,17 +1,18 @@
 // Speed against error: deblurring methods at several budgets on observation folders with ground
 // truth, one row of figures per (scene, method, budget), written as results.csv, results.md and a
-// speed-against-error plot. Used by `evkit bench` and `evkit demo`.
+// speed-against-error plot. Used by `evkit bench` and `evkit demo`; errors are evkit::Error.
 #pragma once
 
 #include <cmath>
 #include <cstdint>
+#include <functional>
+#include <map>
 #include <string>
 #include <vector>
 
-#include "deblur_runner.h"
-#include "evkit/deblur/deblurrer.h"
+#include "evkit/deblur/evaluate.h"
 
-namespace evkit::cli {
+namespace evkit {
 
 // One method at one budget.
 struct BenchRun {
@@ -23,7 +24,7 @@ struct BenchRun {
 // The runs for `methods` (blurry, edi, benerf, benerf-mlp): BeNeRF once per entry of `budgets`,
 // the MLP once per entry of `mlp_budgets`. A budget is N (iterations of the fast budget), a name
 // (fast, balanced, quality) or a duration in seconds ("60s"). `extra` holds METHOD.KEY settings
-// added to every run of that method. Throws UsageError on an unknown method or a bad budget.
+// added to every run of that method. Throws evkit::Error on an unknown method, setting or budget.
 std::vector<BenchRun> benchRuns(const std::vector<std::string>& methods,
                                 const std::vector<std::string>& budgets,
                                 const std::vector<std::string>& mlp_budgets,
@@ -45,10 +46,12 @@ struct BenchRow {
 };
 
 // Runs one method on one observation, writing its outputs into out_dir (empty: none). Failures
-// become a row with status "failed: ..."; the report is returned through `report` when given.
+// become a row with status "failed: ..."; the report is returned through `report` when given;
+// `progress` is passed to the method (DeblurRequest::progress).
 BenchRow runBench(const Observation& obs, const std::string& group, const std::string& scene,
                   const std::string& what, const BenchRun& run, const std::string& out_dir,
-                  MethodReport* report = nullptr);
+                  MethodReport* report = nullptr,
+                  const std::function<void(int, int, double)>& progress = {});
 
 // The angle (degrees) of R_a(start)^T R_a(end) against the same for b.
 double exposureRotationErrorDeg(const std::vector<StampedPose>& a,
@@ -67,4 +70,4 @@ std::vector<BenchRow> readBenchCsv(const std::string& path);
 void drawSpeedError(const std::vector<BenchRow>& rows, const std::string& title,
                     const std::string& png_path);
 
-}  // namespace evkit::cli
+}  // namespace evkit

@@ -1,4 +1,4 @@
-#include "bench.h"
+#include "evkit/harness/speed_error.h"
 
 #include <algorithm>
 #include <cstdio>
@@ -10,13 +10,14 @@
 #include <set>
 #include <sstream>
 
-#include "common.h"
 #include "evkit/base/error.h"
+#include "evkit/base/text.h"
 #include "evkit/deblur/benerf.h"
 #include "evkit/events/atomic_file.h"
+#include "evkit/events/image_io.h"
 #include "evkit/spline/lie.h"
 
-namespace evkit::cli {
+namespace evkit {
 
 namespace fs = std::filesystem;
 
@@ -27,7 +28,7 @@ std::pair<std::string, MethodSettings> parseBudget(const std::string& token) {
   try {
     return {parseBenerfBudget(token).label, {{"budget", token}}};
   } catch (const Error& e) {
-    throw UsageError(std::string("--budgets: ") + e.what());
+    throw Error(std::string("--budgets: ") + e.what());
   }
 }
 
@@ -173,15 +174,14 @@ std::vector<BenchRun> benchRuns(const std::vector<std::string>& methods,
       runs.push_back({m, "-", makeMethod(m, with_extra(m, {}))});
     } else if (m == "benerf" || m == "benerf-mlp") {
       const std::vector<std::string>& list = m == "benerf" ? budgets : mlp_budgets;
-      if (list.empty()) throw UsageError("no budgets for " + m);
+      if (list.empty()) throw Error("no budgets for " + m);
       for (const std::string& token : list) {
         auto [label, settings] = parseBudget(token);
         if (m == "benerf-mlp") settings["field"] = "mlp";
         runs.push_back({m, label, makeMethod("benerf", with_extra(m, settings))});
       }
     } else {
-      throw UsageError("--methods: unknown method '" + m +
-                       "' (known: blurry, edi, benerf, benerf-mlp)");
+      throw Error("--methods: unknown method '" + m + "' (known: blurry, edi, benerf, benerf-mlp)");
     }
   }
   return runs;
@@ -205,7 +205,7 @@ double exposureRotationErrorDeg(const std::vector<StampedPose>& a,
 
 BenchRow runBench(const Observation& obs, const std::string& group, const std::string& scene,
                   const std::string& what, const BenchRun& run, const std::string& out_dir,
-                  MethodReport* report) {
+                  MethodReport* report, const std::function<void(int, int, double)>& progress) {
   BenchRow row;
   row.group = group;
   row.scene = scene;
@@ -214,7 +214,10 @@ BenchRow runBench(const Observation& obs, const std::string& group, const std::s
   row.budget = run.budget;
   row.rotation_truth_deg = exposureRotationDeg(obs.gt_poses);
   try {
-    MethodReport r = runMethod(obs, run.deblurrer, completeRequest(obs, {}), out_dir);
+    DeblurRequest request = completeRequest(obs, {});
+    request.progress = progress;
+    MethodReport r = evaluateMethod(obs, run.deblurrer, request);
+    if (!out_dir.empty()) writeMethodOutputs(out_dir, obs, run.deblurrer, r);
     row.wall_s = r.wall_s;
     row.psnr = r.psnr_mid;
     row.ssim = r.ssim_mid;
@@ -434,7 +437,7 @@ void drawSpeedError(const std::vector<BenchRow>& all_rows, const std::string& ti
   }
   if (points.empty()) text("no finished runs", {kLeft + 20, kTop + 40}, 0.6, ink);
 
-  writeImageAtomically(png_path, img);
+  writeImageFile(png_path, img);
 }
 
-}  // namespace evkit::cli
+}  // namespace evkit
