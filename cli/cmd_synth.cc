@@ -15,12 +15,14 @@ using namespace evkit::synth;
 
 int runSynth(const Args& args) {
   po::options_description opts("options");
-  opts.add_options()("preset", po::value<std::string>(),
-                     "planes, box, rgbd, ground, text or plain")(
+  opts.add_options()(
+      "preset", po::value<std::string>(),
+      "planes, box, rgbd, ground, text, plain, or a natural scene (see --suite natural)")(
       "scene", po::value<std::string>(), "scene description file (YAML or JSON; see the README)")(
       "suite", po::value<std::string>(),
       "a named suite into OUT/<name>: standard (5 scenes x blur 15 and 40 px, noiseless events), "
-      "noisy (the same with DAVIS-like event noise), hard (9 hard cases), all")(
+      "noisy (the same with DAVIS-like event noise), hard (9 hard cases), natural (12 scenes from "
+      "real photographs at several depths, 24 observations), all")(
       "out", po::value<std::string>()->required(), "output folder")(
       "size", po::value<std::string>()->default_value("346x260"), "image size WxH")(
       "blur-px", po::value<double>()->default_value(30),
@@ -38,6 +40,11 @@ int runSynth(const Args& args) {
       "gain", po::value<double>()->default_value(1.0),
       "radiance scale (< 1 dark, > 1 saturated highlights; frames clip at 1)")(
       "drop-events", po::bool_switch(), "write no events (an exposure whose events were lost)")(
+      "rotation-share", po::value<double>()->default_value(0.7),
+      "share of the shake that is rotation (the rest translation), 0..1")(
+      "preroll-us", po::value<int64_t>()->default_value(0),
+      "simulate events from this long before the exposure (real reference levels)")(
+      "photos", po::value<std::string>(), "natural scenes: folder of the photographs")(
       "supersample", po::value<int>()->default_value(2), "rays per pixel per side (anti-aliasing)")(
       "image", po::value<std::string>(), "rgbd preset: colour image")(
       "depth", po::value<std::string>(), "rgbd preset: depth map (16-bit PNG)")(
@@ -67,6 +74,10 @@ int runSynth(const Args& args) {
   o.drop_events = vm["drop-events"].as<bool>();
   o.simulator.seed = o.shake.seed;
   o.supersample = vm["supersample"].as<int>();
+  o.shake.rotation_share = vm["rotation-share"].as<double>();
+  o.preroll_us = vm["preroll-us"].as<int64_t>();
+  if (!(o.shake.rotation_share >= 0 && o.shake.rotation_share <= 1) || o.preroll_us < 0)
+    throw UsageError("--rotation-share must be in [0, 1] and --preroll-us not negative");
   if (!(o.shake.blur_px > 0) || o.exposure_us <= 0 || !(o.simulator.contrast_pos > 0) ||
       o.supersample < 1 || !(o.gain > 0)) {
     throw UsageError(
@@ -82,6 +93,7 @@ int runSynth(const Args& args) {
   if (vm.count("image")) so.rgbd_image = vm["image"].as<std::string>();
   if (vm.count("depth")) so.rgbd_depth = vm["depth"].as<std::string>();
   so.rgbd_depth_scale = vm["depth-scale"].as<double>();
+  if (vm.count("photos")) so.photo_dir = vm["photos"].as<std::string>();
   const std::string out = vm["out"].as<std::string>();
 
   const auto one = [](const Scene& scene, const SynthOptions& options, const std::string& dir,

@@ -97,6 +97,10 @@ Observation loadObservation(const std::string& dir) {
       return x.exposure_start_us < y.exposure_start_us;
     });
     if (fs::exists(gt / "poses.txt")) obs.gt_poses = readTum((gt / "poses.txt").string());
+    std::ifstream info(gt / "info.txt");
+    for (std::string key, value; info >> key >> value;) {
+      if (key == "blur_px") obs.gt_blur_px = std::strtod(value.c_str(), nullptr);
+    }
   }
   return obs;
 }

@@ -27,11 +27,19 @@ class SceneSource final : public RenderSource {
               int supersample, double gain)
       : scene_(scene), camera_(camera), w_(w), h_(h), traj_(traj), gain_(gain) {
     options_.supersample = supersample;
+    // Before the trajectory's start (a pre-roll) the camera moves on at its speed there.
+    const int64_t t0 = traj.beginUs(), dt = std::max<int64_t>(1, (traj.endUs() - t0) / 100);
+    start_ = traj.poseAt(t0);
+    velocity_per_us_ = logSE3(start_.inverse() * traj.poseAt(t0 + dt)) / static_cast<double>(dt);
   }
   SensorSize sensor() const override { return {w_, h_}; }
+  SE3 pose(int64_t t_us) const {
+    if (t_us >= traj_.beginUs()) return traj_.poseAt(t_us);
+    return start_ * expSE3(velocity_per_us_ * static_cast<double>(t_us - traj_.beginUs()));
+  }
   cv::Mat render(int64_t t_us) override {
     ++renders_;
-    cv::Mat image = synth::render(scene_, camera_, w_, h_, traj_.poseAt(t_us), options_);
+    cv::Mat image = synth::render(scene_, camera_, w_, h_, pose(t_us), options_);
     if (gain_ != 1.0) image *= gain_;
     return image;
   }
@@ -45,6 +53,8 @@ class SceneSource final : public RenderSource {
   double gain_;
   RenderOptions options_;
   int64_t renders_ = 0;
+  SE3 start_;
+  Vector6 velocity_per_us_;
 };
 
 Trajectory scaled(const std::vector<Vector6>& xi, double s, int64_t t0, int64_t t1) {
@@ -132,19 +142,24 @@ SynthReport writeObservation(const Scene& scene, const SynthOptions& o, const st
   driver.exposures = {{t0, t1}};
   auto writer = openWriter(tmp + "/events.h5", Format::kHdf5, SensorSize{o.width, o.height});
   cv::Mat blurry;
+  int64_t written = 0;
   AdaptiveOptions uniform;
   uniform.lambda = 1e30;  // never reject: a fixed step from the blur length
   uniform.min_step_us = uniform.max_step_us =
       std::clamp<int64_t>(static_cast<int64_t>(static_cast<double>(t1 - t0) * o.max_motion_px /
                                                std::max(report.blur_px, 1e-9)),
                           1, (t1 - t0) / 50);
-  const SimulatorStats stats = simulateAdaptive(
-      source, t0, t1, driver, uniform, [&](const EventStore& ev, const std::vector<Frame>& done) {
-        if (!o.drop_events) writer->write(ev.view());
-        if (!done.empty()) blurry = done.front().image;
-      });
+  const SimulatorStats stats =
+      simulateAdaptive(source, t0 - o.preroll_us, t1, driver, uniform,
+                       [&](const EventStore& ev, const std::vector<Frame>& done) {
+                         // The pre-roll's events only set each pixel's reference level.
+                         const EventSpan kept = ev.sliceTime(t0, t1 + 1);
+                         if (!o.drop_events) writer->write(kept);
+                         written += static_cast<int64_t>(kept.size());
+                         if (!done.empty()) blurry = done.front().image;
+                       });
   writer->close();
-  report.events = o.drop_events ? 0 : stats.events;
+  report.events = o.drop_events ? 0 : written;
   report.renders = source.renders();
   report.max_fraction_over_c = stats.max_fraction_over_c;
   writeImageFile(tmp + "/blurry.png", blurry, 16);

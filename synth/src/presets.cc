@@ -108,6 +108,7 @@ std::vector<std::string> presetNames() {
 }
 
 Scene makePreset(const std::string& name, const SceneOptions& o) {
+  if (isNaturalScene(name)) return makeNaturalScene(name, o);
   Scene s;
   s.colour = o.colour;
   s.background = 0.1;
@@ -151,7 +152,11 @@ Scene makePreset(const std::string& name, const SceneOptions& o) {
   } else {
     std::string known;
     for (const std::string& p : presetNames()) known += (known.empty() ? "" : ", ") + p;
-    throw Error("unknown preset '" + name + "' (known: " + known + ")");
+    throw Error("unknown preset '" + name + "' (known: " + known + "; natural scenes: " + [] {
+      std::string n;
+      for (const std::string& x : naturalSceneNames()) n += (n.empty() ? "" : ", ") + x;
+      return n;
+    }() + ")");
   }
   return s;
 }
@@ -245,6 +250,9 @@ void SuiteEntry::apply(SynthOptions& o) const {
   o.simulator.sigma = sigma;
   o.simulator.shot_noise_rate_hz = shot_noise_hz;
   o.simulator.leak_rate_hz = leak_hz;
+  if (seed) o.shake.seed = seed;
+  o.shake.rotation_share = rotation_share;
+  o.preroll_us = preroll_us;
 }
 
 namespace {
@@ -268,7 +276,7 @@ std::vector<SuiteEntry> sceneGrid(const std::string& group, const std::string& s
 
 }  // namespace
 
-std::vector<std::string> suiteNames() { return {"standard", "noisy", "hard", "all"}; }
+std::vector<std::string> suiteNames() { return {"standard", "noisy", "hard", "natural", "all"}; }
 
 std::vector<SuiteEntry> suiteEntries(const std::string& suite) {
   std::vector<SuiteEntry> entries;
@@ -312,8 +320,35 @@ std::vector<SuiteEntry> suiteEntries(const std::string& suite) {
     hard("dense", "planes", 40, "dense events: C = 0.08").contrast = 0.08;
     hard("noevents", "planes", 40, "no events in the exposure").drop_events = true;
   }
+  if (suite == "natural" || suite == "all") {
+    // Each scene noiseless and with DAVIS-like noise, at two shake seeds and two blur lengths, so
+    // that no figure rests on one draw; rotation and translation in equal parts (near layers move
+    // more than far ones); events from 30 ms before the exposure.
+    const std::vector<std::string> scenes = naturalSceneNames();
+    const double blurs[3] = {15, 30, 60};
+    for (size_t i = 0; i < scenes.size(); ++i) {
+      for (int noisy = 0; noisy < 2; ++noisy) {
+        SuiteEntry e;
+        e.group = "natural";
+        e.scene = scenes[i];
+        e.blur_px = blurs[(i + noisy) % 3];
+        e.name = "nat_" + scenes[i] + "_blur" + std::to_string(static_cast<int>(e.blur_px)) +
+                 (noisy ? "_noisy" : "");
+        e.seed = 1 + noisy;
+        e.rotation_share = 0.5;
+        e.preroll_us = 30'000;
+        if (noisy) {
+          e.what = "threshold mismatch 0.03, shot noise 1 Hz, leak 0.1 Hz per pixel";
+          e.sigma = 0.03;
+          e.shot_noise_hz = 1;
+          e.leak_hz = 0.1;
+        }
+        entries.push_back(e);
+      }
+    }
+  }
   if (entries.empty())
-    throw Error("unknown suite '" + suite + "' (known: standard, noisy, hard, all)");
+    throw Error("unknown suite '" + suite + "' (known: standard, noisy, hard, natural, all)");
   return entries;
 }
 

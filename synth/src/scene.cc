@@ -178,31 +178,53 @@ double marchHeightField(const HeightField& hf, const Vector3& o, const Vector3& 
   return kNoHit;
 }
 
-// The nearest hit along o + lambda d (lambda = depth along z when d = R (.., .., 1)); its colour.
+// What a ray sees along o + lambda d (lambda = depth along z when d = R (.., .., 1)): the surfaces
+// it meets, composited front to back (a matte lets part of what lies behind through), over the
+// height field or the background. Returns the lambda of the first hit at least half opaque.
 double nearest(const Scene& scene, const Vector3& o, const Vector3& d, cv::Vec3f& colour) {
-  double best = kNoHit;
-  colour = cv::Vec3f(static_cast<float>(scene.background), static_cast<float>(scene.background),
-                     static_cast<float>(scene.background));
-  for (const Rectangle& r : scene.rectangles) {
-    double s, t;
-    const double lambda = intersect(r, o, d, s, t);
-    if (lambda < best) {
-      best = lambda;
-      colour = r.texture->sample(s, t);
-    }
-  }
+  const float bg = static_cast<float>(scene.background);
+  cv::Vec3f behind(bg, bg, bg);
+  double far = kNoHit;
   if (scene.height_field) {
     cv::Vec3f c;
     const double z = marchHeightField(*scene.height_field, o, d, c);
     if (z < kNoHit) {
-      const double lambda = (z - o.z()) / d.z();
-      if (lambda < best) {
-        best = lambda;
-        colour = c;
-      }
+      far = (z - o.z()) / d.z();
+      behind = c;
     }
   }
-  return best;
+  struct Hit {
+    double lambda;
+    const Rectangle* r;
+    double s, t;
+  };
+  Hit hits[16];
+  int n = 0;
+  for (const Rectangle& r : scene.rectangles) {
+    double s, t;
+    const double lambda = intersect(r, o, d, s, t);
+    if (lambda >= far) continue;
+    if (n < 16) {
+      hits[n++] = {lambda, &r, s, t};
+    } else {  // more than 16 surfaces on one ray: keep the nearest 16
+      Hit* last = std::max_element(hits, hits + n,
+                                   [](const Hit& a, const Hit& b) { return a.lambda < b.lambda; });
+      if (lambda < last->lambda) *last = {lambda, &r, s, t};
+    }
+  }
+  std::sort(hits, hits + n, [](const Hit& a, const Hit& b) { return a.lambda < b.lambda; });
+  colour = cv::Vec3f(0, 0, 0);
+  float transmitted = 1.0f;
+  double depth = kNoHit;
+  for (int i = 0; i < n && transmitted > 1e-4f; ++i) {
+    const float a = hits[i].r->texture->opacity(hits[i].s, hits[i].t);
+    if (a <= 0) continue;
+    colour += transmitted * a * hits[i].r->texture->sample(hits[i].s, hits[i].t);
+    if (depth == kNoHit && a >= 0.5f) depth = hits[i].lambda;
+    transmitted *= 1.0f - a;
+  }
+  colour += transmitted * behind;
+  return depth < kNoHit ? depth : far;
 }
 
 double firstHit(const Scene& scene, const Vector3& o, const Vector3& d) {
@@ -215,6 +237,11 @@ double firstHit(const Scene& scene, const Vector3& o, const Vector3& d) {
 
 cv::Vec3f Texture::sample(double s, double t) const {
   return bilinear(image, s * image.cols - 0.5, t * image.rows - 0.5);
+}
+
+float Texture::opacity(double s, double t) const {
+  if (alpha.empty()) return 1.0f;
+  return bilinearScalar(alpha, s * alpha.cols - 0.5, t * alpha.rows - 0.5);
 }
 
 Texture makeTexture(const TextureSpec& spec) {

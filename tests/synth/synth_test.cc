@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <map>
 #include <opencv2/imgproc.hpp>
 
 #include "evkit/base/error.h"
@@ -214,6 +215,123 @@ TEST(Synth, HardCasesSaturateDarkenAndDropEvents) {
   EXPECT_DOUBLE_EQ(noisy_obs.contrast->on, 0.2);
   EXPECT_NE(test::readText(dir / "hard_noisy/gt/info.txt").find("shot_noise_hz 5"),
             std::string::npos);
+}
+
+// A plane with a matte lets what lies behind it through: front-to-back compositing, and the depth
+// of the first surface at least half opaque.
+TEST(Synth, MattesCompositeFrontToBack) {
+  const int w = 24, h = 18;
+  const Calibration cam = defaultCamera(w, h);
+  const auto flat = [&](float value, float alpha) {
+    auto tex = std::make_shared<Texture>();
+    tex->image = cv::Mat(8, 8, CV_32F, cv::Scalar(value));
+    if (alpha < 1) tex->alpha = cv::Mat(8, 8, CV_32F, cv::Scalar(alpha));
+    return tex;
+  };
+  for (const float alpha : {0.25f, 0.75f}) {
+    Scene scene;
+    scene.rectangles.emplace_back(Vector3(0, 0, 4), Vector3::UnitX(), Vector3::UnitY(), 20, 20,
+                                  flat(0.2f, 1));
+    scene.rectangles.emplace_back(Vector3(0, 0, 2), Vector3::UnitX(), Vector3::UnitY(), 10, 10,
+                                  flat(0.8f, alpha));
+    cv::Mat depth;
+    const cv::Mat img = render(scene, cam, w, h, SE3(), RenderOptions{1}, &depth);
+    EXPECT_NEAR(img.at<float>(h / 2, w / 2), alpha * 0.8 + (1 - alpha) * 0.2, 1e-6) << alpha;
+    EXPECT_NEAR(depth.at<float>(h / 2, w / 2), alpha < 0.5 ? 4.0 : 2.0, 1e-6) << alpha;
+  }
+}
+
+// With a pre-roll the events of the exposure start from each pixel's last event before it, not
+// from the exposure's first frame: the accumulated events still match the log change to within
+// two thresholds (one at each end), and some pixels need more than one.
+TEST(Synth, PrerollLeavesRealReferenceLevels) {
+  ScratchDir dir;
+  const Scene scene = makePreset("text", {});
+  SynthOptions o = small(8.0);
+  const auto residuals = [&](const std::string& name) {
+    writeObservation(scene, o, dir / name);
+    const Recording rec = readRecording(dir / (name + "/events.h5"));
+    const int64_t t0 = o.t_begin_us, t1 = t0 + o.exposure_us;
+    EXPECT_GE(rec.events.t.front(), t0);
+    EXPECT_LE(rec.events.t.back(), t1);
+    const cv::Mat start = readImageFile(dir / (name + "/gt/" + std::to_string(t0) + ".png")).image;
+    const cv::Mat end = readImageFile(dir / (name + "/gt/" + std::to_string(t1) + ".png")).image;
+    cv::Mat sum = cv::Mat::zeros(o.height, o.width, CV_32F);
+    for (size_t e = 0; e < rec.events.size(); ++e)
+      sum.at<float>(rec.events.y[e], rec.events.x[e]) += 0.2f * rec.events.p[e];
+    const LogMapping log;
+    std::vector<double> r;
+    for (int y = 0; y < o.height; ++y) {
+      for (int x = 0; x < o.width; ++x)
+        r.push_back(std::abs(log.toLog(start.at<float>(y, x)) + sum.at<float>(y, x) -
+                             log.toLog(end.at<float>(y, x))));
+    }
+    return r;
+  };
+  const std::vector<double> reset = residuals("reset");
+  o.preroll_us = 15000;
+  const std::vector<double> real = residuals("preroll");
+  const auto count_over = [](const std::vector<double>& r, double limit) {
+    return std::count_if(r.begin(), r.end(), [&](double v) { return v > limit; });
+  };
+  EXPECT_EQ(count_over(reset, 0.2 + 0.02), 0);
+  EXPECT_EQ(count_over(real, 0.4 + 0.02), 0);
+  EXPECT_GT(count_over(real, 0.2 + 0.02), 20);
+}
+
+TEST(Synth, NaturalSuiteHasEachSceneTwiceAtEveryBlur) {
+  const std::vector<SuiteEntry> entries = suiteEntries("natural");
+  ASSERT_EQ(entries.size(), 2 * naturalSceneNames().size());
+  std::map<double, int> blurs;
+  std::map<std::string, int> scenes;
+  for (const SuiteEntry& e : entries) {
+    ++blurs[e.blur_px];
+    ++scenes[e.scene];
+    EXPECT_EQ(e.group, "natural");
+    EXPECT_EQ(e.preroll_us, 30000);
+    EXPECT_EQ(e.rotation_share, 0.5);
+    EXPECT_EQ(e.sigma > 0, e.name.ends_with("_noisy")) << e.name;
+  }
+  EXPECT_EQ(blurs, (std::map<double, int>{{15, 8}, {30, 8}, {60, 8}}));
+  for (const auto& [scene, n] : scenes) EXPECT_EQ(n, 2) << scene;
+}
+
+// The photographs come from Debian's python3-skimage (scripts/install-deps.sh installs it).
+TEST(Synth, NaturalScenesFromPhotographs) {
+  if (!test::fs::exists(test::fs::path(defaultPhotoDir()) / "astronaut.png"))
+    GTEST_SKIP() << "no photographs in " << defaultPhotoDir()
+                 << ": install python3-skimage (scripts/install-deps.sh) or set EVKIT_PHOTOS";
+  const int w = 64, h = 48;
+  const Calibration cam = defaultCamera(w, h);
+  for (const std::string& name : naturalSceneNames()) {
+    const Scene scene = makePreset(name, {});
+    cv::Mat depth;
+    const cv::Mat img = render(scene, cam, w, h, SE3(), RenderOptions{1}, &depth);
+    double lo, hi;
+    cv::minMaxLoc(img.reshape(1), &lo, &hi);
+    EXPECT_GE(lo, 0.03 - 1e-6) << name;  // no pure black, nothing above the photographs' 0.88
+    EXPECT_LE(hi, 0.88 + 1e-6) << name;
+    EXPECT_GT(hi - lo, 0.2) << name;  // a photograph, not a flat wall
+    cv::minMaxLoc(depth, &lo, &hi);
+    EXPECT_GT(lo, 0.5) << name;  // every pixel sees a surface
+    EXPECT_LT(hi, 12) << name;
+    if (name == "coffee_astronaut") {
+      EXPECT_EQ(img.channels(), 3);
+      EXPECT_NEAR(lo, 1.2, 1e-6);  // the cut-out before the backdrop
+      EXPECT_NEAR(hi, 4.5, 1e-6);
+    }
+    if (name == "coffee_plane") {
+      EXPECT_NEAR(hi - lo, 0, 1e-9);
+    }
+    if (name == "motorcycle") {  // the Middlebury depth: about 0.7 m to 5 m
+      EXPECT_GT(lo, 0.6);
+      EXPECT_GT(hi - lo, 1.0);
+    }
+  }
+  EXPECT_THROW(makePreset("no_such_scene", {}), Error);
+  SceneOptions elsewhere;
+  elsewhere.photo_dir = "/nonexistent";
+  EXPECT_THROW(makeNaturalScene("coffee_plane", elsewhere), Error);
 }
 
 }  // namespace

@@ -79,7 +79,9 @@ double csvNumber(const std::string& v) {
 constexpr const char* kCsvHeader =
     "group,scene,what,method,budget,status,wall_s,psnr_mid,ssim_mid,brisque_mid,psnr_mean,rotation_"
     "error_deg,"
-    "rotation_truth_deg,iterations,nonfinite";
+    "rotation_truth_deg,iterations,nonfinite,rotation_estimated_deg,rotation_error_px,blur_truth_"
+    "px,"
+    "blur_estimated_px";
 
 std::string csvNumberField(double v) {
   if (!std::isfinite(v)) return "";
@@ -105,8 +107,9 @@ std::vector<BenchRow> summaryRows(const std::vector<BenchRow>& rows, std::string
 
 struct Summary {
   std::string method, budget;
-  double psnr = 0, ssim = 0, brisque = 0, rotation = 0, wall = 0;
-  int n = 0, n_rotation = 0, n_brisque = 0, failed = 0;
+  double psnr = 0, ssim = 0, brisque = 0, rotation = 0, rotation_px = 0, rotation_found = 0,
+         wall = 0;
+  int n = 0, n_rotation = 0, n_rotation_px = 0, n_found = 0, n_brisque = 0, failed = 0;
   int64_t nonfinite = 0;
   double first_seen = 0;  // order of appearance
 };
@@ -134,6 +137,9 @@ std::vector<Summary> summarise(const std::vector<BenchRow>& rows) {
     s.wall += r.wall_s;
     if (std::isfinite(r.brisque)) s.brisque += r.brisque, ++s.n_brisque;
     if (std::isfinite(r.rotation_error_deg)) s.rotation += r.rotation_error_deg, ++s.n_rotation;
+    if (std::isfinite(r.rotation_error_px)) s.rotation_px += r.rotation_error_px, ++s.n_rotation_px;
+    if (std::isfinite(r.rotation_estimated_deg) && r.rotation_truth_deg > 0)
+      s.rotation_found += r.rotation_estimated_deg / r.rotation_truth_deg, ++s.n_found;
   }
   std::vector<Summary> out;
   for (auto& [key, s] : by) {
@@ -144,6 +150,8 @@ std::vector<Summary> summarise(const std::vector<BenchRow>& rows) {
     }
     s.brisque = s.n_brisque ? s.brisque / s.n_brisque : std::nan("");
     s.rotation = s.n_rotation ? s.rotation / s.n_rotation : std::nan("");
+    s.rotation_px = s.n_rotation_px ? s.rotation_px / s.n_rotation_px : std::nan("");
+    s.rotation_found = s.n_found ? s.rotation_found / s.n_found : std::nan("");
     out.push_back(s);
   }
   std::sort(out.begin(), out.end(),
@@ -154,6 +162,73 @@ std::vector<Summary> summarise(const std::vector<BenchRow>& rows) {
 std::string health(const BenchRow& r) {
   if (!r.ok()) return r.status;
   return r.nonfinite ? std::to_string(r.nonfinite) + " non-finite values" : "ok";
+}
+
+std::vector<std::string> groupsOf(const std::vector<BenchRow>& rows) {
+  std::vector<std::string> groups;
+  for (const BenchRow& r : rows) {
+    if (std::find(groups.begin(), groups.end(), r.group) == groups.end()) groups.push_back(r.group);
+  }
+  return groups;
+}
+
+// The mean per method and budget over one group's scenes.
+void writeGroupSummary(std::ostringstream& md, const std::vector<BenchRow>& rows,
+                       const std::string& group) {
+  std::vector<BenchRow> in_group;
+  for (const BenchRow& r : rows) {
+    if (r.group == group) in_group.push_back(r);
+  }
+  md << "\n## Speed against error: mean over the " << group << " scenes\n\n"
+     << "| method | budget | PSNR (dB) | SSIM | BRISQUE | rotation error (°) | at the border (px) "
+        "| rotation found | wall time (s) | scenes | failed | non-finite |\n"
+     << "|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+  for (const Summary& s : summarise(in_group)) {
+    md << "| " << s.method << " | " << s.budget << " | " << fixedOrDash(s.n ? s.psnr : NAN, 2)
+       << " | " << fixedOrDash(s.n ? s.ssim : NAN, 4) << " | " << fixedOrDash(s.brisque, 1) << " | "
+       << fixedOrDash(s.rotation, 3) << " | " << fixedOrDash(s.rotation_px, 2) << " | "
+       << fixedOrDash(s.rotation_found, 3) << " | "
+       << fixedOrDash(s.n ? s.wall : NAN, s.wall < 1 ? 3 : 1) << " | " << s.n << " | " << s.failed
+       << " | " << s.nonfinite << " |\n";
+  }
+}
+
+// One line per scene of a group, PSNR per run, and the numerical health.
+void writePerScene(std::ostringstream& md, const std::vector<BenchRow>& rows,
+                   const std::string& group) {
+  std::vector<std::string> scenes, run_names;
+  std::map<std::string, std::map<std::string, const BenchRow*>> by;
+  for (const BenchRow& r : rows) {
+    if (r.group != group) continue;
+    if (!by.count(r.scene)) scenes.push_back(r.scene);
+    if (std::find(run_names.begin(), run_names.end(), runName(r)) == run_names.end())
+      run_names.push_back(runName(r));
+    by[r.scene][runName(r)] = &r;
+  }
+  if (scenes.empty()) return;
+  md << "\n## Per scene, " << group
+     << " (PSNR of the mid frame, dB; health: failures and non-finite output values)\n\n"
+     << "| scene | what |";
+  for (const std::string& n : run_names) md << ' ' << n << " |";
+  md << " health |\n|---|---|";
+  for (size_t i = 0; i < run_names.size(); ++i) md << "---|";
+  md << "---|\n";
+  for (const std::string& c : scenes) {
+    const auto& runs = by[c];
+    md << "| " << c << " | " << runs.begin()->second->what << " |";
+    std::string problems;
+    for (const std::string& n : run_names) {
+      const auto it = runs.find(n);
+      md << ' '
+         << (it == runs.end()   ? ""
+             : it->second->ok() ? fixedOrDash(it->second->psnr, 2)
+                                : "failed")
+         << " |";
+      if (it != runs.end() && health(*it->second) != "ok")
+        problems += (problems.empty() ? "" : "; ") + n + ": " + health(*it->second);
+    }
+    md << ' ' << (problems.empty() ? "ok" : problems) << " |\n";
+  }
 }
 
 }  // namespace
@@ -195,6 +270,31 @@ double exposureRotationDeg(const std::vector<StampedPose>& poses) {
          180.0 / M_PI;
 }
 
+double exposureRotationErrorPx(const std::vector<StampedPose>& a, const std::vector<StampedPose>& b,
+                               const PinholeCamera& camera) {
+  if (a.size() < 2 || b.size() < 2 || camera.width <= 0) return std::nan("");
+  const Quaternion qa = a.front().pose.rotation().conjugate() * a.back().pose.rotation();
+  const Quaternion qb = b.front().pose.rotation().conjugate() * b.back().pose.rotation();
+  const Eigen::Matrix3d error = (qa.conjugate() * qb).toRotationMatrix();
+  const double w = camera.width - 1, h = camera.height - 1;
+  double largest = 0;
+  for (const auto& [x, y] : {std::pair{0.0, 0.0},
+                             {w / 2, 0.0},
+                             {w, 0.0},
+                             {0.0, h / 2},
+                             {w, h / 2},
+                             {0.0, h},
+                             {w / 2, h},
+                             {w, h}}) {
+    const Vector3 ray((x - camera.cx) / camera.fx, (y - camera.cy) / camera.fy, 1.0);
+    const Vector3 moved = error * ray;
+    if (moved.z() <= 1e-6) return std::nan("");
+    largest = std::max(largest, std::hypot(camera.fx * moved.x() / moved.z() + camera.cx - x,
+                                           camera.fy * moved.y() / moved.z() + camera.cy - y));
+  }
+  return largest;
+}
+
 double exposureRotationErrorDeg(const std::vector<StampedPose>& a,
                                 const std::vector<StampedPose>& b) {
   if (a.size() < 2 || b.size() < 2) return std::nan("");
@@ -213,6 +313,7 @@ BenchRow runBench(const Observation& obs, const std::string& group, const std::s
   row.method = run.method;
   row.budget = run.budget;
   row.rotation_truth_deg = exposureRotationDeg(obs.gt_poses);
+  row.blur_truth_px = obs.gt_blur_px;
   try {
     DeblurRequest request = completeRequest(obs, {});
     request.progress = progress;
@@ -229,8 +330,16 @@ BenchRow runBench(const Observation& obs, const std::string& group, const std::s
       values = values.reshape(1, 1);
       for (int i = 0; i < values.cols; ++i) row.nonfinite += !std::isfinite(values.at<float>(0, i));
     }
-    if (r.result.trajectory)
+    if (r.result.trajectory) {
       row.rotation_error_deg = exposureRotationErrorDeg(*r.result.trajectory, obs.gt_poses);
+      row.rotation_estimated_deg = exposureRotationDeg(*r.result.trajectory);
+      row.rotation_error_px = exposureRotationErrorPx(
+          *r.result.trajectory, obs.gt_poses,
+          obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows));
+    }
+    if (const auto it = r.result.parameters.find("blur_px_measured");
+        it != r.result.parameters.end())
+      row.blur_estimated_px = it->second;
     if (const auto it = r.result.parameters.find("iterations"); it != r.result.parameters.end())
       row.iterations = it->second;
     if (report) *report = std::move(r);
@@ -248,7 +357,7 @@ std::vector<BenchRow> readBenchCsv(const std::string& path) {
   if (!std::getline(in, line) || line != kCsvHeader) return rows;  // another layout: start afresh
   while (std::getline(in, line)) {
     const std::vector<std::string> f = csvSplit(line);
-    if (f.size() != 15) continue;
+    if (f.size() != 19) continue;
     BenchRow r;
     r.group = f[0], r.scene = f[1], r.what = f[2], r.method = f[3], r.budget = f[4],
     r.status = f[5];
@@ -258,6 +367,8 @@ std::vector<BenchRow> readBenchCsv(const std::string& path) {
     r.rotation_truth_deg = csvNumber(f[12]);
     r.iterations = csvNumber(f[13]);
     r.nonfinite = static_cast<int64_t>(csvNumber(f[14]));
+    r.rotation_estimated_deg = csvNumber(f[15]), r.rotation_error_px = csvNumber(f[16]);
+    r.blur_truth_px = csvNumber(f[17]), r.blur_estimated_px = csvNumber(f[18]);
     rows.push_back(r);
   }
   return rows;
@@ -275,70 +386,33 @@ void writeBenchResults(const std::string& dir, const std::vector<BenchRow>& rows
         << csvNumberField(r.ssim) << ',' << csvNumberField(r.brisque) << ','
         << csvNumberField(r.psnr_mean) << ',' << csvNumberField(r.rotation_error_deg) << ','
         << csvNumberField(r.rotation_truth_deg) << ',' << csvNumberField(r.iterations) << ','
-        << r.nonfinite << "\n";
+        << r.nonfinite << ',' << csvNumberField(r.rotation_estimated_deg) << ','
+        << csvNumberField(r.rotation_error_px) << ',' << csvNumberField(r.blur_truth_px) << ','
+        << csvNumberField(r.blur_estimated_px) << "\n";
   }
   writeFileAtomically(dir + "/results.csv", csv.str());
 
-  std::string group;
-  const std::vector<BenchRow> summary_rows = summaryRows(rows, &group);
   std::ostringstream md;
-  md << "# " << title << "\n\n## Speed against error (mean over " << group << ")\n\n"
+  md << "# " << title << "\n\n"
      << "PSNR, SSIM and BRISQUE of the mid-exposure frame; rotation error: the angle between the "
-        "estimated and the true "
-        "rotation over the exposure. Means over the scenes a run finished.\n\n"
-     << "| method | budget | PSNR (dB) | SSIM | BRISQUE | rotation error (°) | wall time (s) | "
-        "scenes | failed | non-finite |\n"
-     << "|---|---|---|---|---|---|---|---|---|---|\n";
-  for (const Summary& s : summarise(summary_rows)) {
-    md << "| " << s.method << " | " << s.budget << " | " << fixedOrDash(s.n ? s.psnr : NAN, 2)
-       << " | " << fixedOrDash(s.n ? s.ssim : NAN, 4) << " | " << fixedOrDash(s.brisque, 1) << " | "
-       << fixedOrDash(s.rotation, 2) << " | " << fixedOrDash(s.n ? s.wall : NAN, s.wall < 1 ? 3 : 1)
-       << " | " << s.n << " | " << s.failed << " | " << s.nonfinite << " |\n";
-  }
-  // Hard cases: one line per case, PSNR per run, and the numerical health.
-  std::vector<std::string> hard_cases, run_names;
-  std::map<std::string, std::map<std::string, const BenchRow*>> hard;
-  for (const BenchRow& r : rows) {
-    if (r.group != "hard") continue;
-    if (!hard.count(r.scene)) hard_cases.push_back(r.scene);
-    if (std::find(run_names.begin(), run_names.end(), runName(r)) == run_names.end())
-      run_names.push_back(runName(r));
-    hard[r.scene][runName(r)] = &r;
-  }
-  if (!hard_cases.empty()) {
-    md << "\n## Hard cases (PSNR of the mid frame, dB; health: failures and non-finite output "
-          "values)\n\n| case | what |";
-    for (const std::string& n : run_names) md << ' ' << n << " |";
-    md << " health |\n|---|---|";
-    for (size_t i = 0; i < run_names.size(); ++i) md << "---|";
-    md << "---|\n";
-    for (const std::string& c : hard_cases) {
-      const auto& runs = hard[c];
-      md << "| " << c << " | " << runs.begin()->second->what << " |";
-      std::string problems;
-      for (const std::string& n : run_names) {
-        const auto it = runs.find(n);
-        md << ' '
-           << (it == runs.end()   ? ""
-               : it->second->ok() ? fixedOrDash(it->second->psnr, 2)
-                                  : "failed")
-           << " |";
-        if (it != runs.end() && health(*it->second) != "ok")
-          problems += (problems.empty() ? "" : "; ") + n + ": " + health(*it->second);
-      }
-      md << ' ' << (problems.empty() ? "ok" : problems) << " |\n";
-    }
-  }
+        "estimated and the true rotation over the exposure, and that error as image motion at the "
+        "image border (px); rotation found: the estimated rotation over the true one. Means over "
+        "the scenes a run finished.\n";
+  for (const std::string& group : groupsOf(rows)) writeGroupSummary(md, rows, group);
+  for (const char* group : {"hard", "natural"}) writePerScene(md, rows, group);
   md << "\n## Every run\n\n| group | scene | method | budget | PSNR (dB) | SSIM | BRISQUE | "
-        "rotation error (°) | true rotation (°) | "
-        "iterations | wall time (s) | health "
-        "|\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+        "rotation error (°) | at the border (px) | rotation found (°) | true rotation (°) | blur "
+        "found (px) | true blur (px) | iterations | wall time (s) | health "
+        "|\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const BenchRow& r : rows) {
     md << "| " << r.group << " | " << r.scene << " | " << r.method << " | " << r.budget << " | "
        << fixedOrDash(r.psnr, 2) << " | " << fixedOrDash(r.ssim, 4) << " | "
-       << fixedOrDash(r.brisque, 1) << " | " << fixedOrDash(r.rotation_error_deg, 2) << " | "
-       << fixedOrDash(r.rotation_truth_deg, 2) << " | " << fixedOrDash(r.iterations, 0) << " | "
-       << fixedOrDash(r.wall_s, r.wall_s < 1 ? 3 : 1) << " | " << health(r) << " |\n";
+       << fixedOrDash(r.brisque, 1) << " | " << fixedOrDash(r.rotation_error_deg, 3) << " | "
+       << fixedOrDash(r.rotation_error_px, 2) << " | " << fixedOrDash(r.rotation_estimated_deg, 3)
+       << " | " << fixedOrDash(r.rotation_truth_deg, 3) << " | "
+       << fixedOrDash(r.blur_estimated_px, 1) << " | " << fixedOrDash(r.blur_truth_px, 1) << " | "
+       << fixedOrDash(r.iterations, 0) << " | " << fixedOrDash(r.wall_s, r.wall_s < 1 ? 3 : 1)
+       << " | " << health(r) << " |\n";
   }
   writeFileAtomically(dir + "/results.md", md.str());
   drawSpeedError(rows, title, dir + "/speed_vs_error.png");

@@ -2,6 +2,7 @@
 // (the observation folder of DESIGN.md §6), and the ground truth when there is some.
 #pragma once
 
+#include <cmath>
 #include <optional>
 #include <string>
 #include <vector>
@@ -27,7 +28,8 @@ struct Observation {
   // Ground truth (synthetic data): sharp frames (their exposure_start_us is their time) and poses.
   std::vector<Frame> gt_frames;
   std::vector<StampedPose> gt_poses;
-  std::string source;  // where it came from, for reports
+  double gt_blur_px = std::nan("");  // the longest image path of a point (gt/info.txt's blur_px)
+  std::string source;                // where it came from, for reports
 };
 
 // Reads an observation folder: blurry.png, exposure.txt, events.{h5,txt,aedat4,...}, calib.txt,

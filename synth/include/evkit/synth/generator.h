@@ -38,6 +38,8 @@ struct SceneOptions {
   // For the rgbd preset: a colour image and a depth (or disparity) map; empty: procedural.
   std::string rgbd_image, rgbd_depth;
   double rgbd_depth_scale = 0.001;  // file units -> metres (16-bit PNG in mm)
+  // For the natural scenes: the folder of the photographs (empty: defaultPhotoDir()).
+  std::string photo_dir;
 };
 
 // Presets: planes (4 textured planes at 1.6-6 m), box (a box on a slanted ground plane before a
@@ -45,7 +47,18 @@ struct SceneOptions {
 // plane before a noise wall), plain (a uniform wall with two small textured cards: texture-less
 // regions over most of the image).
 std::vector<std::string> presetNames();
+// A preset or a natural scene by name.
 Scene makePreset(const std::string& name, const SceneOptions& options);
+
+// Natural scenes (synth/src/natural.cc): real photographs as depth-layered scenes, planes at 1-10 m
+// with soft-edged cut-outs before full backdrops (occlusion boundaries), a slanted wall, a ground
+// plane, planar ones, and the Middlebury motorcycle with its real depth map. Some are in colour.
+// They read the data images of Debian's python3-skimage (CC0 or public domain).
+std::vector<std::string> naturalSceneNames();
+bool isNaturalScene(const std::string& name);
+Scene makeNaturalScene(const std::string& name, const SceneOptions& options);
+// $EVKIT_PHOTOS, else the folder where python3-skimage installs its data images.
+std::string defaultPhotoDir();
 Scene loadScene(const std::string& path, const SceneOptions& options);
 
 // The default camera for an image size: fx = fy = 0.9 width, principal point at the centre.
@@ -86,6 +99,11 @@ struct SynthOptions {
   double gain = 1.0;
   // Writes an empty event file (an exposure whose events were lost): the blurry frame is unchanged.
   bool drop_events = false;
+  // Events are simulated from this long before the exposure (the motion continued at its speed at
+  // the exposure's start), so that each pixel's reference level when the exposure opens is where
+  // its last event left it, as on a real camera, not the exposure's first frame. Only the events
+  // inside the exposure are written.
+  int64_t preroll_us = 0;
 };
 
 struct SynthReport {
@@ -110,10 +128,14 @@ SynthReport writeObservation(const Scene& scene, const SynthOptions& options,
 //  - hard: one hard case each (hard_<case>): blur 70 px, blur 2 px, texture-less, saturated
 //    highlights, a very dark scene, noisy events (mismatch, shot noise, leak), sparse events
 //    (C = 0.5), dense events (C = 0.08), an exposure without events;
+//  - natural: each natural scene twice, noiseless (shake seed 1) and with DAVIS-like noise (seed
+//  2),
+//    blur 15, 30 or 60 px in turn, rotation and translation in equal parts, a 30 ms pre-roll
+//    (nat_<scene>_blur<px>[_noisy]);
 //  - all: every one of them.
 struct SuiteEntry {
   std::string name;   // folder name
-  std::string group;  // "standard", "noisy" or "hard"
+  std::string group;  // "standard", "noisy", "hard" or "natural"
   std::string scene;  // preset
   double blur_px = 30;
   std::string what;  // what makes it hard or noisy (empty for standard entries)
@@ -121,8 +143,11 @@ struct SuiteEntry {
   double contrast = 0.2;
   double sigma = 0, shot_noise_hz = 0, leak_hz = 0;
   bool drop_events = false;
+  uint64_t seed = 0;            // of the shake; 0: the options' own
+  double rotation_share = 0.7;  // ShakeOptions::rotation_share
+  int64_t preroll_us = 0;
 
-  // Sets the blur, gain, thresholds and noise of `options` (size, exposure, seed stay).
+  // Sets the blur, gain, thresholds, noise, shake and pre-roll of `options` (size, exposure stay).
   void apply(SynthOptions& options) const;
 };
 std::vector<std::string> suiteNames();

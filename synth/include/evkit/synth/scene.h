@@ -19,10 +19,13 @@
 
 namespace evkit::synth {
 
-// A texture image covering [0,1]^2 of an object's surface, sampled bilinearly.
+// A texture image covering [0,1]^2 of an object's surface, sampled bilinearly; with an alpha
+// matte, the surface is partly transparent (a cut-out with soft edges: an occlusion boundary).
 struct Texture {
   cv::Mat image;                               // CV_32FC1 or CV_32FC3, linear [0,1]
+  cv::Mat alpha;                               // empty (opaque) or CV_32FC1 in [0,1], image's size
   cv::Vec3f sample(double s, double t) const;  // s, t in [0,1]; clamped at the border
+  float opacity(double s, double t) const;     // 1 without a matte
 };
 
 struct TextureSpec {
@@ -79,8 +82,9 @@ struct RenderOptions {
   int supersample = 2;  // k x k rays per pixel, averaged (anti-aliasing)
 };
 
-// Renders radiance (and, if asked, the depth along z of the first hit at each pixel centre; 0 where
-// nothing is hit) at a pose. Parallel over rows.
+// Renders radiance (and, if asked, the depth along z of the first hit at each pixel centre that is
+// at least half opaque; 0 where nothing is hit) at a pose. Surfaces with an alpha matte are
+// composited front to back over what lies behind them. Parallel over rows.
 cv::Mat render(const Scene& scene, const Calibration& camera, int width, int height,
                const SE3& T_world_cam, const RenderOptions& options = {}, cv::Mat* depth = nullptr);
 

@@ -38,6 +38,11 @@ struct BenchRow {
   double psnr_mean = std::nan("");           // over every ground-truth time
   double rotation_error_deg = std::nan("");  // of the exposure's rotation, R(start)^T R(end)
   double rotation_truth_deg = std::nan("");
+  double rotation_estimated_deg = std::nan("");  // the method's own exposure rotation
+  // The rotation error as image motion: the largest displacement (px) of the image's corners and
+  // edge midpoints under the error rotation (the trajectory's error at the image border).
+  double rotation_error_px = std::nan("");
+  double blur_truth_px = std::nan(""), blur_estimated_px = std::nan("");  // gt/info.txt; method
   double iterations = std::nan("");
   int64_t nonfinite = 0;  // NaN or Inf values in the output frames
 
@@ -57,6 +62,10 @@ BenchRow runBench(const Observation& obs, const std::string& group, const std::s
 double exposureRotationErrorDeg(const std::vector<StampedPose>& a,
                                 const std::vector<StampedPose>& b);
 double exposureRotationDeg(const std::vector<StampedPose>& poses);
+// The largest image displacement (px) of the border points (corners, edge midpoints) of `camera`
+// under the rotation between a's and b's exposure rotations.
+double exposureRotationErrorPx(const std::vector<StampedPose>& a, const std::vector<StampedPose>& b,
+                               const PinholeCamera& camera);
 
 // results.csv (every row), results.md (the mean per method and budget, per scene, hard cases with
 // their numerical health) and speed_vs_error.png, each written atomically into `dir`.
