@@ -42,6 +42,9 @@ int runSynth(const Args& args) {
       "drop-events", po::bool_switch(), "write no events (an exposure whose events were lost)")(
       "rotation-share", po::value<double>()->default_value(0.7),
       "share of the shake that is rotation (the rest translation), 0..1")(
+      "share-of-image-motion", po::bool_switch(),
+      "--rotation-share as a share of the image motion (the rotation alone moves the image by "
+      "that share of --blur-px)")(
       "preroll-us", po::value<int64_t>()->default_value(0),
       "simulate events from this long before the exposure (real reference levels)")(
       "photos", po::value<std::string>(), "natural scenes: folder of the photographs")(
@@ -76,6 +79,7 @@ int runSynth(const Args& args) {
   o.supersample = vm["supersample"].as<int>();
   o.shake.rotation_share = vm["rotation-share"].as<double>();
   o.preroll_us = vm["preroll-us"].as<int64_t>();
+  o.shake.share_of_image_motion = vm["share-of-image-motion"].as<bool>();
   if (!(o.shake.rotation_share >= 0 && o.shake.rotation_share <= 1) || o.preroll_us < 0)
     throw UsageError("--rotation-share must be in [0, 1] and --preroll-us not negative");
   if (!(o.shake.blur_px > 0) || o.exposure_us <= 0 || !(o.simulator.contrast_pos > 0) ||

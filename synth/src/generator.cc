@@ -4,6 +4,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <random>
 #include <sstream>
 
@@ -113,14 +114,52 @@ Trajectory makeShake(const Scene& scene, const Calibration& camera, int width, i
         Vector3(n(rng), n(rng), 0.3 * n(rng)) * 0.01 * options.rotation_share;
     xi.push_back(v);
   }
-  double s = 1.0;
-  for (int it = 0; it < 6; ++it) {
-    const double blur = blurLengthPx(scaled(xi, s, t_begin, t_end), scene, camera, width, height);
+  // One scale s_r for the rotations and s_t for the translations, found by secant steps on the
+  // blur length (it grows monotonically with each): first the rotation alone to its share, then the
+  // translation for the rest. Without share_of_image_motion one common scale.
+  const auto with_scales = [&](double s_r, double s_t) {
+    std::vector<Vector6> out = xi;
+    for (Vector6& v : out) v.head<3>() *= s_t, v.tail<3>() *= s_r;
+    return out;
+  };
+  const auto blur_of = [&](double s_r, double s_t) {
+    const double blur =
+        blurLengthPx(scaled(with_scales(s_r, s_t), 1.0, t_begin, t_end), scene, camera, width,
+                     height);
     if (blur <= 0) throw Error("the scene is empty: no blur can be measured");
-    const double ratio = options.blur_px / blur;
-    s *= ratio;
-    if (std::abs(ratio - 1.0) < 1e-3) break;
+    return blur;
+  };
+  const auto solve = [&](double target, const std::function<double(double)>& blur, double s) {
+    for (int it = 0; it < 8; ++it) {
+      const double ratio = target / blur(s);
+      s *= ratio;
+      if (std::abs(ratio - 1.0) < 1e-3) break;
+    }
+    return s;
+  };
+  double s_r = 1, s_t = 1;
+  if (!options.share_of_image_motion) {
+    s_r = s_t = solve(options.blur_px, [&](double s) { return blur_of(s, s); }, 1.0);
+  } else {
+    s_r = options.rotation_share > 0
+              ? solve(options.rotation_share * options.blur_px,
+                      [&](double s) { return blur_of(s, 0.0); }, 1.0)
+              : 0.0;
+    // The translation's part: from none (the rotation's blur) up, by bisection (the blur grows
+    // with s_t, but not in proportion).
+    s_t = 0;
+    if (options.rotation_share < 1) {
+      double lo = 0, hi = 1;
+      while (blur_of(s_r, hi) < options.blur_px && hi < 1e6) lo = hi, hi *= 2;
+      for (int it = 0; it < 40 && hi - lo > 1e-4 * hi; ++it) {
+        const double mid = 0.5 * (lo + hi);
+        (blur_of(s_r, mid) < options.blur_px ? lo : hi) = mid;
+      }
+      s_t = 0.5 * (lo + hi);
+    }
   }
+  xi = with_scales(s_r, s_t);
+  const double s = 1.0;
   return scaled(xi, s, t_begin, t_end);
 }
 

@@ -252,6 +252,7 @@ void SuiteEntry::apply(SynthOptions& o) const {
   o.simulator.leak_rate_hz = leak_hz;
   if (seed) o.shake.seed = seed;
   o.shake.rotation_share = rotation_share;
+  o.shake.share_of_image_motion = share_of_image_motion;
   o.preroll_us = preroll_us;
 }
 
@@ -322,8 +323,9 @@ std::vector<SuiteEntry> suiteEntries(const std::string& suite) {
   }
   if (suite == "natural" || suite == "all") {
     // Each scene noiseless and with DAVIS-like noise, at two shake seeds and two blur lengths, so
-    // that no figure rests on one draw; rotation and translation in equal parts (near layers move
-    // more than far ones); events from 30 ms before the exposure.
+    // that no figure rests on one draw; a handheld shake, 70% of the image motion from rotation
+    // and the rest from translation (near layers move more than far ones); events from 30 ms
+    // before the exposure.
     const std::vector<std::string> scenes = naturalSceneNames();
     const double blurs[3] = {15, 30, 60};
     for (size_t i = 0; i < scenes.size(); ++i) {
@@ -335,7 +337,8 @@ std::vector<SuiteEntry> suiteEntries(const std::string& suite) {
         e.name = "nat_" + scenes[i] + "_blur" + std::to_string(static_cast<int>(e.blur_px)) +
                  (noisy ? "_noisy" : "");
         e.seed = 1 + noisy;
-        e.rotation_share = 0.5;
+        e.rotation_share = 0.7;
+        e.share_of_image_motion = true;
         e.preroll_us = 30'000;
         if (noisy) {
           e.what = "threshold mismatch 0.03, shot noise 1 Hz, leak 0.1 Hz per pixel";

@@ -60,6 +60,27 @@ TEST(Synth, ShakeHasTheRequestedBlurAndIsCentredAtMidExposure) {
   }
 }
 
+// A shake split by image motion: the rotation alone moves the image by its share of the blur, the
+// translation adds the rest, so the near layer of a two-depth scene moves more than the far one.
+TEST(Synth, ShakeSplitByImageMotion) {
+  Scene scene;
+  auto tex = std::make_shared<Texture>();
+  tex->image = cv::Mat(8, 8, CV_32F, cv::Scalar(0.5));
+  scene.rectangles.emplace_back(Vector3(0, 0, 6), Vector3::UnitX(), Vector3::UnitY(), 30, 30, tex);
+  scene.rectangles.emplace_back(Vector3(0, 0, 1.2), Vector3::UnitX(), Vector3::UnitY(), 0.3, 0.3,
+                                tex);
+  const Calibration cam = defaultCamera(120, 90);
+  ShakeOptions s;
+  s.blur_px = 30;
+  s.rotation_share = 0.7;
+  s.share_of_image_motion = true;
+  const Trajectory traj = makeShake(scene, cam, 120, 90, 0, 100000, s);
+  EXPECT_NEAR(blurLengthPx(traj, scene, cam, 120, 90), 30, 0.3);
+  Trajectory rotation_only = traj;
+  for (SE3& k : rotation_only.knots()) k = SE3(k.rotation(), Vector3::Zero());
+  EXPECT_NEAR(blurLengthPx(rotation_only, scene, cam, 120, 90), 21, 1.5);
+}
+
 // The observation folder: blurry frame = mean of dense sharp frames; events = the simulator's
 // invariant between the ground-truth frames at the exposure's start and end; deterministic.
 TEST(Synth, ObservationFolderIsConsistentWithItsGroundTruth) {
@@ -163,7 +184,7 @@ TEST(Synth, RgbdPresetAndSceneFiles) {
   EXPECT_THROW(makePreset("nope", {}), Error);
   EXPECT_EQ(suiteEntries("standard").size(), 10u);
   EXPECT_EQ(suiteEntries("hard").size(), 9u);
-  EXPECT_EQ(suiteEntries("all").size(), 29u);
+  EXPECT_EQ(suiteEntries("all").size(), 29u + 2 * naturalSceneNames().size());
   const std::vector<SuiteEntry> noisy = suiteEntries("noisy");
   ASSERT_EQ(noisy.size(), 10u);
   EXPECT_EQ(noisy[0].name, "planes_blur15_noisy");
@@ -289,7 +310,8 @@ TEST(Synth, NaturalSuiteHasEachSceneTwiceAtEveryBlur) {
     ++scenes[e.scene];
     EXPECT_EQ(e.group, "natural");
     EXPECT_EQ(e.preroll_us, 30000);
-    EXPECT_EQ(e.rotation_share, 0.5);
+    EXPECT_EQ(e.rotation_share, 0.7);
+    EXPECT_TRUE(e.share_of_image_motion);
     EXPECT_EQ(e.sigma > 0, e.name.ends_with("_noisy")) << e.name;
   }
   EXPECT_EQ(blurs, (std::map<double, int>{{15, 8}, {30, 8}, {60, 8}}));

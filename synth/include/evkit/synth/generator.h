@@ -69,6 +69,11 @@ struct ShakeOptions {
   int knots = 4;
   double rotation_share = 0.7;  // of the motion's blur coming from rotation (the rest translation)
   uint64_t seed = 1;
+  // How rotation_share is read. false: as the knots' rotation (rad) against their translation (m),
+  // so the image motion's split depends on the scene's depth and the draw. true: as image motion,
+  // the rotation alone moving the image by rotation_share * blur_px and the translation adding the
+  // rest at the point that moves most: a handheld shake whose parallax stays a share of the blur.
+  bool share_of_image_motion = false;
 };
 
 // Random smooth camera shake over [t_begin, t_end]: a cubic B-spline on SE(3) with random knots,
@@ -145,6 +150,7 @@ struct SuiteEntry {
   bool drop_events = false;
   uint64_t seed = 0;            // of the shake; 0: the options' own
   double rotation_share = 0.7;  // ShakeOptions::rotation_share
+  bool share_of_image_motion = false;  // ShakeOptions::share_of_image_motion
   int64_t preroll_us = 0;
 
   // Sets the blur, gain, thresholds, noise, shake and pre-roll of `options` (size, exposure stay).
