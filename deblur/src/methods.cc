@@ -36,7 +36,7 @@ std::unique_ptr<Deblurrer> makeBlurry(const MethodSettings& settings) {
   return std::make_unique<BlurryDeblurrer>();
 }
 
-struct Method {
+struct RegisteredMethod {
   const char* name;
   std::unique_ptr<Deblurrer> (*make)(const MethodSettings&);
   std::string (*help)();
@@ -46,7 +46,7 @@ std::string noSettings() { return "  (none)\n"; }
 std::string ediHelp() { return ediSettings().help(EdiOptions{}); }
 std::string benerfHelp() { return benerfSettings().help(BenerfOptions{}); }
 
-const Method kMethods[] = {
+const RegisteredMethod kMethods[] = {
     {"blurry", makeBlurry, noSettings},
     {"edi", makeEdi, ediHelp},
     {"benerf", makeBenerf, benerfHelp},
@@ -56,12 +56,12 @@ const Method kMethods[] = {
 
 std::vector<std::string> deblurrerNames() {
   std::vector<std::string> names;
-  for (const Method& m : kMethods) names.push_back(m.name);
+  for (const RegisteredMethod& m : kMethods) names.push_back(m.name);
   return names;
 }
 
 std::unique_ptr<Deblurrer> makeDeblurrer(const std::string& name, const MethodSettings& settings) {
-  for (const Method& m : kMethods) {
+  for (const RegisteredMethod& m : kMethods) {
     if (name == m.name) return m.make(settings);
   }
   std::string known;
@@ -70,7 +70,7 @@ std::unique_ptr<Deblurrer> makeDeblurrer(const std::string& name, const MethodSe
 }
 
 std::string deblurrerHelp(const std::string& name) {
-  for (const Method& m : kMethods) {
+  for (const RegisteredMethod& m : kMethods) {
     if (name == m.name) return m.help();
   }
   throw Error("unknown method '" + name + "'");
