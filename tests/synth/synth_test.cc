@@ -354,6 +354,24 @@ TEST(Synth, NaturalScenesFromPhotographs) {
   SceneOptions elsewhere;
   elsewhere.photo_dir = "/nonexistent";
   EXPECT_THROW(makeNaturalScene("coffee_plane", elsewhere), Error);
+  // A damaged depth archive: one clear error naming it, for each way it can be damaged.
+  ScratchDir dir;
+  test::fs::copy_file(test::fs::path(defaultPhotoDir()) / "motorcycle_left.png",
+                      dir.path() / "motorcycle_left.png");
+  const std::string archive =
+      test::readText((test::fs::path(defaultPhotoDir()) / "motorcycle_disp.npz").string());
+  elsewhere.photo_dir = dir.path().string();
+  for (const std::string& bad :
+       {std::string(), archive.substr(0, 20), archive.substr(0, 2000), "PK\x03\x04" + archive,
+        archive.substr(0, 30) + std::string(5000, '\x55')}) {
+    test::writeText(dir / "motorcycle_disp.npz", bad);
+    try {
+      makeNaturalScene("motorcycle", elsewhere);
+      ADD_FAILURE() << "a damaged archive of " << bad.size() << " bytes was read";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("motorcycle_disp.npz"), std::string::npos) << e.what();
+    }
+  }
 }
 
 }  // namespace
