@@ -4,6 +4,7 @@
 #include <chrono>
 
 #include "evkit/base/error.h"
+#include "evkit/base/text.h"
 #include "evkit/deblur/benerf.h"
 #include "evkit/deblur/deblurrer.h"
 #include "evkit/deblur/edi.h"
@@ -64,9 +65,7 @@ std::unique_ptr<Deblurrer> makeDeblurrer(const std::string& name, const MethodSe
   for (const RegisteredMethod& m : kMethods) {
     if (name == m.name) return m.make(settings);
   }
-  std::string known;
-  for (const std::string& n : deblurrerNames()) known += (known.empty() ? "" : ", ") + n;
-  throw Error("unknown method '" + name + "' (known: " + known + ")");
+  throw Error("unknown method '" + name + "' (known: " + joinNames(deblurrerNames()) + ")");
 }
 
 std::string deblurrerHelp(const std::string& name) {

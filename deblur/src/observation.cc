@@ -98,8 +98,8 @@ Observation loadObservation(const std::string& dir) {
     });
     if (fs::exists(gt / "poses.txt")) obs.gt_poses = readTum((gt / "poses.txt").string());
     std::ifstream info(gt / "info.txt");
-    for (std::string key, value; info >> key >> value;) {
-      if (key == "blur_px") obs.gt_blur_px = std::strtod(value.c_str(), nullptr);
+    for (std::string line; std::getline(info, line);) {
+      if (line.rfind("blur_px ", 0) == 0) obs.gt_blur_px = std::strtod(line.c_str() + 8, nullptr);
     }
   }
   return obs;

@@ -4,7 +4,6 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
-#include <functional>
 #include <random>
 #include <sstream>
 
@@ -114,22 +113,22 @@ Trajectory makeShake(const Scene& scene, const Calibration& camera, int width, i
         Vector3(n(rng), n(rng), 0.3 * n(rng)) * 0.01 * options.rotation_share;
     xi.push_back(v);
   }
-  // One scale s_r for the rotations and s_t for the translations, found by secant steps on the
-  // blur length (it grows monotonically with each): first the rotation alone to its share, then the
-  // translation for the rest. Without share_of_image_motion one common scale.
+  // One scale s_r for the rotations and s_t for the translations, found on the blur length (it
+  // grows monotonically with each): without share_of_image_motion one common scale, by fixed-point
+  // steps (the blur is about proportional to it); with it the rotation alone to its share the same
+  // way, then the translation for the rest by bisection.
   const auto with_scales = [&](double s_r, double s_t) {
     std::vector<Vector6> out = xi;
     for (Vector6& v : out) v.head<3>() *= s_t, v.tail<3>() *= s_r;
     return out;
   };
   const auto blur_of = [&](double s_r, double s_t) {
-    const double blur =
-        blurLengthPx(scaled(with_scales(s_r, s_t), 1.0, t_begin, t_end), scene, camera, width,
-                     height);
+    const double blur = blurLengthPx(scaled(with_scales(s_r, s_t), 1.0, t_begin, t_end), scene,
+                                     camera, width, height);
     if (blur <= 0) throw Error("the scene is empty: no blur can be measured");
     return blur;
   };
-  const auto solve = [&](double target, const std::function<double(double)>& blur, double s) {
+  const auto solve = [](double target, const auto& blur, double s) {
     for (int it = 0; it < 8; ++it) {
       const double ratio = target / blur(s);
       s *= ratio;
@@ -139,12 +138,13 @@ Trajectory makeShake(const Scene& scene, const Calibration& camera, int width, i
   };
   double s_r = 1, s_t = 1;
   if (!options.share_of_image_motion) {
-    s_r = s_t = solve(options.blur_px, [&](double s) { return blur_of(s, s); }, 1.0);
+    s_r = s_t = solve(
+        options.blur_px, [&](double s) { return blur_of(s, s); }, 1.0);
   } else {
-    s_r = options.rotation_share > 0
-              ? solve(options.rotation_share * options.blur_px,
-                      [&](double s) { return blur_of(s, 0.0); }, 1.0)
-              : 0.0;
+    s_r = options.rotation_share > 0 ? solve(
+                                           options.rotation_share * options.blur_px,
+                                           [&](double s) { return blur_of(s, 0.0); }, 1.0)
+                                     : 0.0;
     // The translation's part: from none (the rotation's blur) up, by bisection (the blur grows
     // with s_t, but not in proportion).
     s_t = 0;
@@ -158,9 +158,7 @@ Trajectory makeShake(const Scene& scene, const Calibration& camera, int width, i
       s_t = 0.5 * (lo + hi);
     }
   }
-  xi = with_scales(s_r, s_t);
-  const double s = 1.0;
-  return scaled(xi, s, t_begin, t_end);
+  return scaled(with_scales(s_r, s_t), 1.0, t_begin, t_end);
 }
 
 SynthReport writeObservation(const Scene& scene, const SynthOptions& o, const std::string& dir) {

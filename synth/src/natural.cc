@@ -7,6 +7,7 @@
 #include <zlib.h>
 
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
@@ -16,6 +17,7 @@
 #include <random>
 
 #include "evkit/base/error.h"
+#include "evkit/base/text.h"
 #include "evkit/events/image_io.h"
 #include "evkit/synth/generator.h"
 
@@ -29,11 +31,14 @@ namespace {
 // 0.9 down for 4:3; backdrops cover it with a margin for the shake.
 constexpr double kHalfWidth = 0.5 / 0.9, kHalfHeight = 0.42 / 0.9, kMargin = 1.5;
 
+std::string photoPath(const SceneOptions& o, const std::string& file) {
+  return (fs::path(o.photo_dir.empty() ? defaultPhotoDir() : o.photo_dir) / file).string();
+}
+
 // sRGB-encoded 8-bit photograph -> linear radiance in [0.03, 0.88] (no pure black: the log mapping
 // of a real sensor never sees zero either).
 cv::Mat photo(const SceneOptions& o, const std::string& file, bool colour) {
-  const std::string dir = o.photo_dir.empty() ? defaultPhotoDir() : o.photo_dir;
-  const std::string path = (fs::path(dir) / file).string();
+  const std::string path = photoPath(o, file);
   if (!fs::is_regular_file(path))
     throwInFile(path,
                 "photograph not found: natural scenes use the data images of Debian's "
@@ -174,12 +179,12 @@ cv::Mat readNpz(const std::string& path) {
 // Seen through a wider lens than it was taken with (f 500 px), so that it fills defaultCamera's
 // view.
 HeightField motorcycle(const SceneOptions& o, bool colour) {
-  const std::string dir = o.photo_dir.empty() ? defaultPhotoDir() : o.photo_dir;
   HeightField hf;
   hf.image = photo(o, "motorcycle_left.png", colour);
-  const cv::Mat disparity = readNpz((fs::path(dir) / "motorcycle_disp.npz").string());
+  const std::string archive = photoPath(o, "motorcycle_disp.npz");
+  const cv::Mat disparity = readNpz(archive);
   if (disparity.size() != hf.image.size())
-    throwInFile(dir + "/motorcycle_disp.npz", "disparity and image differ in size");
+    throwInFile(archive, "disparity and image differ in size");
   hf.depth.create(disparity.size(), CV_32F);
   cv::Mat holes(disparity.size(), CV_8U, cv::Scalar(0));
   for (int y = 0; y < disparity.rows; ++y) {
@@ -192,10 +197,7 @@ HeightField motorcycle(const SceneOptions& o, bool colour) {
   }
   cv::inpaint(hf.depth, holes, hf.depth, 5, cv::INPAINT_TELEA);
   hf.intrinsics = Calibration{500, 500, (hf.image.cols - 1) / 2.0, (hf.image.rows - 1) / 2.0, {}};
-  double zmin, zmax;
-  cv::minMaxLoc(hf.depth, &zmin, &zmax);
-  hf.z_min = zmin * 0.9;
-  hf.z_max = zmax * 1.05;
+  hf.fitDepthRange();
   return hf;
 }
 
@@ -248,12 +250,10 @@ Scene makeNaturalScene(const std::string& name, const SceneOptions& o) {
     l.add("brick.png", Vector3(-0.9, 0, 2.6), 4.0, 2.6, 0, 0.96);
   } else if (name == "gravel_ground") {  // a ground plane below the camera, a wall, a cut-out
     l.backdrop("hubble_deep_field.jpg", 9.0);
-    const Vector3 along = Vector3(0, -0.12, 1).normalized();
-    l.scene.rectangles.push_back(
-        Rectangle(Vector3(0, 0.9 - 0.12 * 4.5, 5.5), Vector3::UnitX(), along, 9, 9, nullptr));
     auto ground = std::make_shared<Texture>();
     ground->image = fitted(photo(o, "gravel.png", colour), 1, 1, 1024);
-    l.scene.rectangles.back().texture = ground;
+    l.scene.rectangles.emplace_back(Vector3(0, 0.9 - 0.12 * 4.5, 5.5), Vector3::UnitX(),
+                                    Vector3(0, -0.12, 1).normalized(), 9, 9, ground);
     l.cutout("chelsea.png", 0.35, -0.5, 2.5, 0.45, 9);
   } else if (name == "motorcycle") {  // a real depth map
     l.scene.height_field = motorcycle(o, colour);
@@ -268,9 +268,8 @@ Scene makeNaturalScene(const std::string& name, const SceneOptions& o) {
     l.backdrop("coins.png", 3.0);
     l.cutout("text.png", -0.2, 0.2, 1.3, 0.55, 11);
   } else {
-    std::string known;
-    for (const std::string& n : naturalSceneNames()) known += (known.empty() ? "" : ", ") + n;
-    throw Error("unknown natural scene '" + name + "' (known: " + known + ")");
+    throw Error("unknown natural scene '" + name + "' (known: " + joinNames(naturalSceneNames()) +
+                ")");
   }
   return l.scene;
 }

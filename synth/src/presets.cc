@@ -5,6 +5,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "evkit/base/error.h"
+#include "evkit/base/text.h"
 #include "evkit/events/image_io.h"
 #include "evkit/synth/generator.h"
 
@@ -90,13 +91,6 @@ HeightField heightFieldFromFiles(const std::string& image, const std::string& de
   return hf;
 }
 
-void finishHeightField(HeightField& hf) {
-  double zmin, zmax;
-  cv::minMaxLoc(hf.depth, &zmin, &zmax);
-  hf.z_min = zmin * 0.9;
-  hf.z_max = zmax * 1.05;
-}
-
 }  // namespace
 
 Calibration defaultCamera(int width, int height) {
@@ -134,7 +128,7 @@ Scene makePreset(const std::string& name, const SceneOptions& o) {
                          ? proceduralHeightField(o)
                          : heightFieldFromFiles(o.rgbd_image, o.rgbd_depth, o.rgbd_depth_scale,
                                                 false, 0, std::nullopt, o.colour);
-    finishHeightField(*s.height_field);
+    s.height_field->fitDepthRange();
   } else if (name == "ground") {
     s.rectangles.push_back(plane(Vector3(0, -1, 7), 16, 8, texture("stripes", 0.05, 1, o)));
     s.rectangles.push_back(ground(o, 5));
@@ -150,13 +144,8 @@ Scene makePreset(const std::string& name, const SceneOptions& o) {
     s.rectangles.push_back(
         plane(Vector3(0.9, 0.5, 2.5), 0.7, 0.5, texture("text", 0.1, 3, o, 0.5, 0.9)));
   } else {
-    std::string known;
-    for (const std::string& p : presetNames()) known += (known.empty() ? "" : ", ") + p;
-    throw Error("unknown preset '" + name + "' (known: " + known + "; natural scenes: " + [] {
-      std::string n;
-      for (const std::string& x : naturalSceneNames()) n += (n.empty() ? "" : ", ") + x;
-      return n;
-    }() + ")");
+    throw Error("unknown preset '" + name + "' (known: " + joinNames(presetNames()) +
+                "; natural scenes: " + joinNames(naturalSceneNames()) + ")");
   }
   return s;
 }
@@ -231,7 +220,7 @@ Scene loadScene(const std::string& path, const SceneOptions& options) {
             heightFieldFromFiles(resolve(str(obj, "image", "")), resolve(str(obj, "depth", "")),
                                  num(obj, "depth_scale", 0.001), num(obj, "disparity", 0) != 0,
                                  num(obj, "baseline", 0.1), k, s.colour);
-        finishHeightField(*s.height_field);
+        s.height_field->fitDepthRange();
       } else {
         throwInFile(path, where + ": unknown type '" + type + "' (known: plane, box, rgbd)");
       }

@@ -239,6 +239,13 @@ cv::Vec3f Texture::sample(double s, double t) const {
   return bilinear(image, s * image.cols - 0.5, t * image.rows - 0.5);
 }
 
+void HeightField::fitDepthRange() {
+  double lo, hi;
+  cv::minMaxLoc(depth, &lo, &hi);
+  z_min = lo * 0.9;
+  z_max = hi * 1.05;
+}
+
 float Texture::opacity(double s, double t) const {
   if (alpha.empty()) return 1.0f;
   return bilinearScalar(alpha, s * alpha.cols - 0.5, t * alpha.rows - 0.5);

@@ -189,8 +189,8 @@ void writeGroupSummary(std::ostringstream& md, const std::vector<BenchRow>& rows
   for (const Summary& s : summarise(in_group)) {
     md << "| " << s.method << " | " << s.budget << " | " << fixedOrDash(s.n ? s.psnr : NAN, 2)
        << " | " << fixedOrDash(s.psnr_exposure, 2) << " | " << fixedOrDash(s.n ? s.ssim : NAN, 4)
-       << " | " << fixedOrDash(s.brisque, 1) << " | " << fixedOrDash(s.rotation, 3) << " | " << fixedOrDash(s.rotation_px, 2) << " | "
-       << fixedOrDash(s.rotation_found, 3) << " | "
+       << " | " << fixedOrDash(s.brisque, 1) << " | " << fixedOrDash(s.rotation, 3) << " | "
+       << fixedOrDash(s.rotation_px, 2) << " | " << fixedOrDash(s.rotation_found, 3) << " | "
        << fixedOrDash(s.n ? s.wall : NAN, s.wall < 1 ? 3 : 1) << " | " << s.n << " | " << s.failed
        << " | " << s.nonfinite << " |\n";
   }
@@ -232,6 +232,14 @@ void writePerScene(std::ostringstream& md, const std::vector<BenchRow>& rows,
     }
     md << ' ' << (problems.empty() ? "ok" : problems) << " |\n";
   }
+}
+
+// R_a(start)^T R_a(end) against the same for b: the rotation between the two exposure rotations.
+Quaternion exposureRotationError(const std::vector<StampedPose>& a,
+                                 const std::vector<StampedPose>& b) {
+  const Quaternion qa = a.front().pose.rotation().conjugate() * a.back().pose.rotation();
+  const Quaternion qb = b.front().pose.rotation().conjugate() * b.back().pose.rotation();
+  return Quaternion(qa.conjugate() * qb);
 }
 
 }  // namespace
@@ -276,9 +284,7 @@ double exposureRotationDeg(const std::vector<StampedPose>& poses) {
 double exposureRotationErrorPx(const std::vector<StampedPose>& a, const std::vector<StampedPose>& b,
                                const PinholeCamera& camera) {
   if (a.size() < 2 || b.size() < 2 || camera.width <= 0) return std::nan("");
-  const Quaternion qa = a.front().pose.rotation().conjugate() * a.back().pose.rotation();
-  const Quaternion qb = b.front().pose.rotation().conjugate() * b.back().pose.rotation();
-  const Eigen::Matrix3d error = (qa.conjugate() * qb).toRotationMatrix();
+  const Eigen::Matrix3d error = exposureRotationError(a, b).toRotationMatrix();
   const double w = camera.width - 1, h = camera.height - 1;
   double largest = 0;
   for (const auto& [x, y] : {std::pair{0.0, 0.0},
@@ -301,9 +307,7 @@ double exposureRotationErrorPx(const std::vector<StampedPose>& a, const std::vec
 double exposureRotationErrorDeg(const std::vector<StampedPose>& a,
                                 const std::vector<StampedPose>& b) {
   if (a.size() < 2 || b.size() < 2) return std::nan("");
-  const Quaternion qa = a.front().pose.rotation().conjugate() * a.back().pose.rotation();
-  const Quaternion qb = b.front().pose.rotation().conjugate() * b.back().pose.rotation();
-  return logSO3(Quaternion(qa.conjugate() * qb)).norm() * 180.0 / M_PI;
+  return logSO3(exposureRotationError(a, b)).norm() * 180.0 / M_PI;
 }
 
 BenchRow runBench(const Observation& obs, const std::string& group, const std::string& scene,

@@ -5,8 +5,16 @@
 #include <cstdio>
 #include <sstream>
 #include <string>
+#include <vector>
 
 namespace evkit {
+
+// "a, b, c": the names an error message lists as known.
+inline std::string joinNames(const std::vector<std::string>& names) {
+  std::string out;
+  for (const std::string& n : names) out += (out.empty() ? "" : ", ") + n;
+  return out;
+}
 
 // v with `decimals` decimals, or "-" when it is not finite (a table cell).
 inline std::string fixedOrDash(double v, int decimals) {

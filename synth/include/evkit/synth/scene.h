@@ -66,6 +66,9 @@ struct HeightField {
   cv::Mat depth;  // CV_32F, metres along z of the source camera (identity pose)
   Calibration intrinsics;
   double z_min = 0, z_max = 0;
+
+  // z_min, z_max: the depth map's range with a margin (the ray march's bounds).
+  void fitDepthRange();
 };
 
 struct Scene {
