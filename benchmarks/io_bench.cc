@@ -92,6 +92,20 @@ void BM_Hdf5Read(benchmark::State& state) {
   state.SetLabel(compressionName(kCompressions[state.range(0)]));
 }
 
+// The whole file into one store, as readRecording (and so evkit.read in Python) does.
+void BM_Hdf5ReadWhole(benchmark::State& state) {
+  const std::string path = pathFor(hdf5Name(static_cast<int>(state.range(0))));
+  if (!fs::exists(path)) {
+    WriterOptions options;
+    options.compression = kCompressions[state.range(0)];
+    writeRecording(path, recording(), std::nullopt, options);
+  }
+  size_t n = 0;
+  for (auto _ : state) n += readRecording(path).events.size();
+  state.SetItemsProcessed(static_cast<int64_t>(n));
+  state.SetLabel(compressionName(kCompressions[state.range(0)]));
+}
+
 void BM_AccumulateSigned(benchmark::State& state) {
   const EventSpan ev = recording().events.view();
   for (auto _ : state) benchmark::DoNotOptimize(accumulateSigned(ev));
@@ -126,6 +140,7 @@ BENCHMARK(BM_TextWrite)->Unit(benchmark::kMillisecond)->Iterations(1);
 BENCHMARK(BM_TextRead)->Unit(benchmark::kMillisecond)->Iterations(3);
 BENCHMARK(BM_Hdf5Write)->DenseRange(0, 2)->Unit(benchmark::kMillisecond)->Iterations(1);
 BENCHMARK(BM_Hdf5Read)->DenseRange(0, 2)->Unit(benchmark::kMillisecond)->Iterations(3);
+BENCHMARK(BM_Hdf5ReadWhole)->DenseRange(0, 2)->Unit(benchmark::kMillisecond)->Iterations(3);
 BENCHMARK(BM_AccumulateSigned)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_AccumulateSignedContrast)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_AccumulateCounts)->Unit(benchmark::kMillisecond);

@@ -21,7 +21,7 @@ if [ "${EVKIT_SKIP_FUZZ:-0}" != "1" ]; then
 fi
 
 if [ "${EVKIT_SKIP_SANITIZE:-0}" != "1" ]; then
-  echo "== AddressSanitizer + UBSan build and tests"
+  echo "== AddressSanitizer + UBSan build and tests (not the Python module and its pytest suite: python3 is not instrumented)"
   cmake -S . -B build-asan -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DEVKIT_BUILD_TESTS=ON \
     -DEVKIT_BUILD_BENCHMARKS=OFF -DEVKIT_SANITIZE=ON -DEVKIT_WERROR=ON -DCMAKE_UNITY_BUILD=ON \
     -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O2 -g1 -DNDEBUG"  # -g1: line tables for the reports, a quicker build

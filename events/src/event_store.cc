@@ -2,6 +2,10 @@
 
 #include <algorithm>
 #include <cassert>
+#include <cstdint>
+#ifdef __linux__
+#include <sys/mman.h>
+#endif
 
 #include "evkit/base/error.h"
 
@@ -24,11 +28,38 @@ EventSpan EventSpan::sliceTime(int64_t t_begin, int64_t t_end) const {
   return subspan(begin, end);
 }
 
+namespace {
+
+// Asks Linux for transparent huge pages over a large column's buffer (as numpy does for its
+// arrays): reading 1e7 events into fresh memory otherwise spends about half its time in 4 KiB
+// page faults. Only whole 2 MiB pages inside the buffer are advised; a no-op elsewhere.
+template <typename T>
+void adviseHugePages(const std::vector<T>& column) {
+#ifdef __linux__
+  constexpr uintptr_t kHuge = uintptr_t{2} << 20;
+  const auto begin = reinterpret_cast<uintptr_t>(column.data());
+  const uintptr_t end = begin + column.capacity() * sizeof(T);
+  const uintptr_t first = (begin + kHuge - 1) & ~(kHuge - 1), last = end & ~(kHuge - 1);
+  if (last > first) madvise(reinterpret_cast<void*>(first), last - first, MADV_HUGEPAGE);
+#else
+  (void)column;
+#endif
+}
+
+}  // namespace
+
 void EventStore::reserve(size_t n) {
+  const bool fresh = n > t.capacity();
   t.reserve(n);
   x.reserve(n);
   y.reserve(n);
   p.reserve(n);
+  if (fresh && n >= (size_t{1} << 20)) {
+    adviseHugePages(t);
+    adviseHugePages(x);
+    adviseHugePages(y);
+    adviseHugePages(p);
+  }
 }
 
 void EventStore::clear() {

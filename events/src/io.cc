@@ -135,10 +135,20 @@ Format detectFormat(const std::string& path) {
 
 bool EventReader::next(Chunk& chunk, size_t max_events) {
   chunk.clear();
+  return append(chunk, max_events);
+}
+
+bool EventReader::append(Chunk& chunk, size_t max_events) {
+  const size_t start_events = chunk.events.size(), start_frames = chunk.frames.size();
+  const size_t limit = start_events + max_events;
+  const auto added = [&] {
+    return chunk.events.size() > start_events || chunk.frames.size() > start_frames;
+  };
   while (!past_window_) {
     const size_t before = chunk.events.size();
     const size_t before_frames = chunk.frames.size();
-    if (!readChunk(chunk, max_events - before)) break;
+    if (!readChunk(chunk, limit - before)) break;
+    if (chunk.events.size() == before && chunk.frames.size() == before_frames) break;
     // Trim to the window; events are sorted, so past the end means done.
     EventStore& ev = chunk.events;
     const auto t_begin = ev.t.begin() + static_cast<std::ptrdiff_t>(before);
@@ -165,9 +175,9 @@ bool EventReader::next(Chunk& chunk, size_t max_events) {
         std::remove_if(chunk.frames.begin() + static_cast<std::ptrdiff_t>(before_frames),
                        chunk.frames.end(), outside),
         chunk.frames.end());
-    if (!chunk.events.empty() || !chunk.frames.empty()) return true;
+    if (added()) return true;
   }
-  return !chunk.events.empty() || !chunk.frames.empty();
+  return added();
 }
 
 void EventReader::setTimeWindow(int64_t t_begin, int64_t t_end) {
@@ -256,14 +266,15 @@ Recording readRecording(const std::string& path, std::optional<Format> format, i
                         int64_t t_end) {
   auto reader = openReader(path, format);
   reader->setTimeWindow(t_begin, t_end);
-  Recording rec;
+  // Read straight into the recording's columns (no intermediate chunk to copy from).
+  Chunk all;
   if (reader->info().event_count)
-    rec.events.reserve(static_cast<size_t>(*reader->info().event_count));
-  Chunk chunk;
-  while (reader->next(chunk, size_t{1} << 22)) {
-    rec.events.append(chunk.events.view());
-    for (Frame& f : chunk.frames) rec.frames.push_back(std::move(f));
+    all.events.reserve(static_cast<size_t>(*reader->info().event_count));
+  while (reader->append(all, size_t{1} << 20)) {
   }
+  Recording rec;
+  rec.events = std::move(all.events);
+  rec.frames = std::move(all.frames);
   rec.info = reader->info();  // counters and warnings are complete only now
   SensorSize sensor = rec.info.sensor;
   if (!sensor.known()) {

@@ -97,7 +97,7 @@ class EventSlicer:
 class Observation:
     """One blurry frame, its exposure, the events and the camera (with ground truth if any)."""
     def __init__(self, blurry: ImageLike, exposure: Tuple[int, int], events: EventsLike,
-                 camera: Union[Mapping[str, Any], Sequence[float], None] = None,
+                 calib: Union[Mapping[str, Any], Sequence[float], None] = None,
                  contrast: Union[float, Tuple[float, float], None] = None) -> None: ...
     @staticmethod
     def load(folder: PathLike) -> "Observation": ...
@@ -109,7 +109,7 @@ class Observation:
     @property
     def events(self) -> Events: ...
     @property
-    def camera(self) -> dict[str, Any]: """fx, fy, cx, cy, distortion, width, height"""
+    def calib(self) -> dict[str, Any]: """fx, fy, cx, cy, distortion, width, height"""
     @property
     def contrast(self) -> Union[Tuple[float, float], None]: ...
     @property

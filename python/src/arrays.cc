@@ -92,7 +92,9 @@ void copyPolarity(const py::array& p, const std::string& what, std::vector<int8_
   if (kind != 'b') {
     if (kind != 'i' && kind != 'u' && kind != 'f')
       throw Error(what + ": p must be -1/+1, 0/1 or bool, not " + dtypeName(p));
-    py::array bad = np.attr("logical_not")(np.attr("isin")(p, py::make_tuple(-1, 0, 1)));
+    py::array bad = np.attr("logical_and")(
+        np.attr("logical_and")(np.attr("not_equal")(p, -1), np.attr("not_equal")(p, 0)),
+        np.attr("not_equal")(p, 1));
     if (p.size() > 0 && np.attr("any")(bad).cast<bool>()) {
       const size_t i = firstTrue(bad);
       throw Error(what + ": event " + std::to_string(i) + ": p = " +

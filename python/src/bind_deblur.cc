@@ -57,7 +57,7 @@ struct PyObservation {
 };
 
 PyObservation makeObservation(py::handle blurry, std::pair<int64_t, int64_t> exposure,
-                              py::handle events, py::handle camera, py::handle contrast) {
+                              py::handle events, py::handle calib, py::handle contrast) {
   auto obs = std::make_shared<Observation>();
   obs->blurry.image = arrayToImage(blurry, "blurry", &obs->blurry.bit_depth);
   obs->blurry.exposure_start_us = exposure.first;
@@ -65,8 +65,8 @@ PyObservation makeObservation(py::handle blurry, std::pair<int64_t, int64_t> exp
   if (exposure.second <= exposure.first) throw Error("exposure: (start_us, end_us) with end > start");
   const SensorSize sensor{obs->blurry.image.cols, obs->blurry.image.rows};
   obs->events = *eventsFrom(events, sensor, "events");
-  obs->camera = camera.is_none() ? synth::defaultCamera(sensor.width, sensor.height)
-                                 : cameraFromPython(camera).withSize(sensor.width, sensor.height);
+  obs->camera = calib.is_none() ? synth::defaultCamera(sensor.width, sensor.height)
+                                : cameraFromPython(calib).withSize(sensor.width, sensor.height);
   if (!contrast.is_none()) obs->contrast = contrastFromPython(contrast);
   obs->source = "python";
   return {obs};
@@ -236,7 +236,7 @@ Calibration cameraFromPython(py::handle camera) {
   if (py::isinstance<py::dict>(camera)) {
     auto d = camera.cast<py::dict>();
     for (const char* k : {"fx", "fy", "cx", "cy"}) {
-      if (!d.contains(k)) throw Error(std::string("camera: no ") + k);
+      if (!d.contains(k)) throw Error(std::string("calib: no ") + k);
     }
     c.fx = d["fx"].cast<double>();
     c.fy = d["fy"].cast<double>();
@@ -246,13 +246,13 @@ Calibration cameraFromPython(py::handle camera) {
   } else {
     const auto v = camera.cast<std::vector<double>>();
     if (v.size() != 4 && v.size() != 8 && v.size() != 9)
-      throw Error("camera: fx, fy, cx, cy[, k1, k2, p1, p2[, k3]]");
+      throw Error("calib: fx, fy, cx, cy[, k1, k2, p1, p2[, k3]]");
     c.fx = v[0], c.fy = v[1], c.cx = v[2], c.cy = v[3];
     c.distortion.assign(v.begin() + 4, v.end());
   }
-  if (!(c.fx > 0) || !(c.fy > 0)) throw Error("camera: fx and fy must be positive");
+  if (!(c.fx > 0) || !(c.fy > 0)) throw Error("calib: fx and fy must be positive");
   if (!c.distortion.empty() && c.distortion.size() != 4 && c.distortion.size() != 5)
-    throw Error("camera: distortion is k1, k2, p1, p2[, k3]");
+    throw Error("calib: distortion is k1, k2, p1, p2[, k3]");
   return c;
 }
 
@@ -261,9 +261,9 @@ void bindDeblur(py::module_& m) {
 the camera: the input of every deblurring method (an observation folder, DESIGN.md §6), with
 the ground truth when there is some.)")
       .def(py::init(&makeObservation), py::arg("blurry"), py::arg("exposure"), py::arg("events"),
-           py::arg("camera") = py::none(), py::arg("contrast") = py::none(),
+           py::arg("calib") = py::none(), py::arg("contrast") = py::none(),
            R"(From arrays: blurry (H, W) or (H, W, 3) RGB, float linear [0, 1] or uint8/uint16;
-exposure (start_us, end_us); events as evkit.write takes them (inside the image); camera a dict
+exposure (start_us, end_us); events as evkit.write takes them (inside the image); calib a dict
 {fx, fy, cx, cy[, distortion]} or (fx, fy, cx, cy[, k1, k2, p1, p2[, k3]]), default fx = fy =
 0.9 width at the centre; contrast C or (C_on, C_off) when known.)")
       .def_static("load", &loadFolder, py::arg("folder"),
@@ -281,7 +281,8 @@ exposure (start_us, end_us); events as evkit.write takes them (inside the image)
         return std::make_pair(o.obs->blurry.exposure_start_us, o.obs->blurry.exposure_end_us);
       }, "(start_us, end_us)")
       .def_property_readonly("events", &PyObservation::events, "evkit.Events (a view, no copy)")
-      .def_property_readonly("camera", [](const PyObservation& o) { return cameraToPython(o.obs->camera); })
+      .def_property_readonly("calib", [](const PyObservation& o) { return cameraToPython(o.obs->camera); },
+                             "The camera: {fx, fy, cx, cy, distortion, width, height}")
       .def_property_readonly("contrast", [](const PyObservation& o) -> py::object {
         if (!o.obs->contrast) return py::none();
         return py::make_tuple(o.obs->contrast->on, o.obs->contrast->off);

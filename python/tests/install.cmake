@@ -15,6 +15,7 @@ endforeach()
 execute_process(
   COMMAND ${CMAKE_COMMAND} -E env PYTHONPATH=${SCRATCH}/${PACKAGE_DIR} PYTHONNOUSERSITE=1
           ${PYTHON} -c "import evkit, sys; assert evkit.__file__.startswith(sys.argv[1]), evkit.__file__; print(evkit.__version__, evkit.__file__)" ${SCRATCH}
+  WORKING_DIRECTORY ${SCRATCH}  # not the build tree's python/, which holds a package evkit too
   RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE err)
 if(NOT rc EQUAL 0)
   message(FATAL_ERROR "import evkit from the installed package failed (${rc}):\n${out}\n${err}")

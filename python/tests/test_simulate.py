@@ -48,8 +48,8 @@ def test_synth_observation_and_folder_round_trip(tmp_path):
 def test_observation_from_arrays(tmp_path):
     src = evkit.synth("planes", blur_px=8, width=48, height=36)
     ev = src.events.events  # a structured array
-    obs = evkit.Observation(src.blurry, src.exposure, ev, camera=(43.2, 43.2, 23.5, 17.5), contrast=0.2)
-    assert obs.camera["fx"] == 43.2 and obs.contrast == (0.2, 0.2) and obs.gt_poses is None
+    obs = evkit.Observation(src.blurry, src.exposure, ev, calib=(43.2, 43.2, 23.5, 17.5), contrast=0.2)
+    assert obs.calib["fx"] == 43.2 and obs.contrast == (0.2, 0.2) and obs.gt_poses is None
     np.testing.assert_array_equal(obs.events.x, src.events.x)
     obs.save(tmp_path / "saved")
     back = evkit.Observation.load(tmp_path / "saved")

@@ -77,6 +77,9 @@ class EventReader {
   // plus the frames whose exposure starts before the chunk's last event (all remaining ones at the
   // end). Returns false when nothing is left.
   bool next(Chunk& chunk, size_t max_events);
+  // As next(), but appends to what `chunk` holds (readRecording reads a whole file this way, into
+  // its final columns). Returns false when nothing was added.
+  bool append(Chunk& chunk, size_t max_events);
 
   // Restricts what next() returns to events with t in [t_begin, t_end) and frames whose exposure
   // starts in it. Formats with an index seek to t_begin; the others skip. Call before next().
