@@ -106,6 +106,13 @@ void BM_Hdf5ReadWhole(benchmark::State& state) {
   state.SetLabel(compressionName(kCompressions[state.range(0)]));
 }
 
+// The check every reader makes of what it read (time order, sensor, polarity).
+void BM_Validate(benchmark::State& state) {
+  const EventSpan ev = recording().events.view();
+  for (auto _ : state) validate(ev, "bench");
+  state.SetItemsProcessed(static_cast<int64_t>(state.iterations() * ev.size()));
+}
+
 void BM_AccumulateSigned(benchmark::State& state) {
   const EventSpan ev = recording().events.view();
   for (auto _ : state) benchmark::DoNotOptimize(accumulateSigned(ev));
@@ -141,6 +148,7 @@ BENCHMARK(BM_TextRead)->Unit(benchmark::kMillisecond)->Iterations(3);
 BENCHMARK(BM_Hdf5Write)->DenseRange(0, 2)->Unit(benchmark::kMillisecond)->Iterations(1);
 BENCHMARK(BM_Hdf5Read)->DenseRange(0, 2)->Unit(benchmark::kMillisecond)->Iterations(3);
 BENCHMARK(BM_Hdf5ReadWhole)->DenseRange(0, 2)->Unit(benchmark::kMillisecond)->Iterations(3);
+BENCHMARK(BM_Validate)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_AccumulateSigned)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_AccumulateSignedContrast)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_AccumulateCounts)->Unit(benchmark::kMillisecond);

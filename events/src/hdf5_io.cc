@@ -42,11 +42,18 @@ constexpr hsize_t kMaxFrames = 1'000'000;  // 14 h at 20 fps, 17 min at 1 kHz
 enum class Layout { kEvkit, kDsec, kEventUtils };
 
 H5Handle openDataset(hid_t file, const std::string& name, const std::string& path) {
+  H5Handle ds(H5Dopen2(file, name.c_str(), H5P_DEFAULT));
+  if (!ds) throwInFile(path, "cannot open dataset '" + name + "'");
+  // Filtered (compressed) chunks are decoded through a chunk cache large enough for a read's
+  // slice; unfiltered ones are read straight into the caller's buffer, with no cache to copy
+  // through (as h5py's whole-dataset reads do).
+  H5Handle dcpl(H5Dget_create_plist(ds.get()));
+  if (dcpl && H5Pget_nfilters(dcpl.get()) == 0) return ds;
   H5Handle dapl(H5Pcreate(H5P_DATASET_ACCESS));
   H5Pset_chunk_cache(dapl.get(), 521, kChunkCacheBytes, 1.0);
-  H5Handle ds(H5Dopen2(file, name.c_str(), dapl.get()));
-  if (!ds) throwInFile(path, "cannot open dataset '" + name + "'");
-  return ds;
+  H5Handle cached(H5Dopen2(file, name.c_str(), dapl.get()));
+  if (!cached) throwInFile(path, "cannot open dataset '" + name + "'");
+  return cached;
 }
 
 class Hdf5Reader final : public EventReader {
