@@ -75,13 +75,19 @@ void BM_Hdf5Write(benchmark::State& state) {
       static_cast<double>(fs::file_size(pathFor(hdf5Name(static_cast<int>(state.range(0)))))) / 1e6;
 }
 
-void BM_Hdf5Read(benchmark::State& state) {
+// The HDF5 file of a compression (range(0)), written on first use.
+std::string hdf5File(const benchmark::State& state) {
   const std::string path = pathFor(hdf5Name(static_cast<int>(state.range(0))));
   if (!fs::exists(path)) {
     WriterOptions options;
     options.compression = kCompressions[state.range(0)];
     writeRecording(path, recording(), std::nullopt, options);
   }
+  return path;
+}
+
+void BM_Hdf5Read(benchmark::State& state) {
+  const std::string path = hdf5File(state);
   size_t n = 0;
   for (auto _ : state) {
     auto reader = openReader(path);
@@ -94,12 +100,7 @@ void BM_Hdf5Read(benchmark::State& state) {
 
 // The whole file into one store, as readRecording (and so evkit.read in Python) does.
 void BM_Hdf5ReadWhole(benchmark::State& state) {
-  const std::string path = pathFor(hdf5Name(static_cast<int>(state.range(0))));
-  if (!fs::exists(path)) {
-    WriterOptions options;
-    options.compression = kCompressions[state.range(0)];
-    writeRecording(path, recording(), std::nullopt, options);
-  }
+  const std::string path = hdf5File(state);
   size_t n = 0;
   for (auto _ : state) n += readRecording(path).events.size();
   state.SetItemsProcessed(static_cast<int64_t>(n));

@@ -8,57 +8,27 @@ evkit.read's columns (.t .x .y .p) are views of the C++ buffers, so its figure s
 reader's (BM_Hdf5ReadWhole); .events builds the structured array (one copy) on top.
 """
 import sys
-import time
-
-import h5py
-import numpy as np
 
 import evkit
+from timing import best_of, read_h5py_columns, report
 
 folder = sys.argv[1] if len(sys.argv) > 1 else "/tmp/evkit-bench"
 
 
-def best_of(fn, repeats=5):
-    best, result = float("inf"), None
-    for _ in range(repeats):
-        start = time.perf_counter()
-        result = fn()
-        best = min(best, time.perf_counter() - start)
-    return best, result
-
-
-def report(name, seconds, n, reference=None):
-    rate = n / seconds / 1e6
-    ratio = f"  {rate / reference:5.2f}x h5py" if reference else ""
-    print(f"{name:<40} {rate:8.1f} M events/s  ({seconds * 1e3:6.0f} ms){ratio}")
-    return rate
+def read_columns(path):
+    rec = evkit.read(path)
+    return rec.t, rec.x, rec.y, rec.p
 
 
 for compression in ("none", "blosc-lz4", "deflate"):
     path = f"{folder}/events_{compression}.h5"
-
-    def read_h5py():
-        with h5py.File(path, "r") as f:
-            e = f["events"]
-            return e["t"][:], e["x"][:], e["y"][:], e["p"][:]
-
-    def read_evkit():
-        rec = evkit.read(path)
-        return rec.t, rec.x, rec.y, rec.p
-
-    def read_structured():
-        return evkit.read(path).events
-
-    def stream_evkit():
-        return sum(len(chunk.t) for chunk in evkit.open(path, chunk=1 << 20))
-
-    seconds, cols = best_of(read_h5py)
+    seconds, cols = best_of(lambda: read_h5py_columns(path), 5)
     n = len(cols[0])
-    h5 = report(f"h5py, {compression}", seconds, n)
-    seconds, cols = best_of(read_evkit)
-    assert len(cols[0]) == n and cols[0].base is not None
-    report(f"evkit.read columns, {compression}", seconds, n, h5)
-    seconds, ev = best_of(read_structured)
-    report(f"evkit.read .events, {compression}", seconds, len(ev), h5)
-    seconds, count = best_of(stream_evkit)
-    report(f"evkit.open 2^20 chunks, {compression}", seconds, count, h5)
+    h5py_rate = report(f"h5py, {compression}", seconds, n, width=40)
+    seconds, cols = best_of(lambda: read_columns(path), 5)
+    assert len(cols[0]) == n and cols[0].base is not None  # views of the C++ store
+    report(f"evkit.read columns, {compression}", seconds, n, h5py_rate, width=40)
+    seconds, ev = best_of(lambda: evkit.read(path).events, 5)
+    report(f"evkit.read .events, {compression}", seconds, len(ev), h5py_rate, width=40)
+    seconds, count = best_of(lambda: sum(len(c.t) for c in evkit.open(path, chunk=1 << 20)), 5)
+    report(f"evkit.open 2^20 chunks, {compression}", seconds, count, h5py_rate, width=40)

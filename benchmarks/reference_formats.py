@@ -6,21 +6,13 @@ files in Python) run on the files that evkit_formats_bench left in a folder, in 
 """
 import struct
 import sys
-import time
 
 import lz4.frame
 import numpy as np
 
+from timing import best_of
+
 folder = sys.argv[1] if len(sys.argv) > 1 else "/tmp/evkit-bench"
-
-
-def best_of(fn, repeats=3):
-    best, result = float("inf"), None
-    for _ in range(repeats):
-        start = time.perf_counter()
-        result = fn()
-        best = min(best, time.perf_counter() - start)
-    return best, result
 
 
 def skip_header(data, marker):

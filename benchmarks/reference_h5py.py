@@ -6,46 +6,29 @@ throughput can be given as a ratio against it.
     /usr/bin/python3 benchmarks/reference_h5py.py /tmp/evkit-bench
 """
 import sys
-import time
 
 import h5py
 import numpy as np
 
+from timing import best_of, read_h5py_columns, report
+
 folder = sys.argv[1] if len(sys.argv) > 1 else "/tmp/evkit-bench"
-
-
-def best_of(fn, repeats):
-    best, result = float("inf"), None
-    for _ in range(repeats):
-        start = time.perf_counter()
-        result = fn()
-        best = min(best, time.perf_counter() - start)
-    return best, result
-
-
-def report(name, seconds, n):
-    print(f"{name:<34} {n / seconds / 1e6:8.1f} M events/s  ({seconds * 1e3:7.0f} ms)")
-
 
 for compression in ("none", "deflate", "blosc-lz4"):
     path = f"{folder}/events_{compression}.h5"
-
-    def read_h5():
-        with h5py.File(path, "r") as f:
-            e = f["events"]
-            return e["t"][:], e["x"][:], e["y"][:], e["p"][:]
-
-    seconds, cols = best_of(read_h5, 3)
+    seconds, cols = best_of(lambda: read_h5py_columns(path), 3)
     report(f"h5py read ({compression})", seconds, len(cols[0]))
 
 with h5py.File(f"{folder}/events_none.h5", "r") as f:
     t, x, y, p = (f["events"][k][:] for k in "txyp")
     width, height = int(f.attrs["sensor_width"]), int(f.attrs["sensor_height"])
 
+
 # Signed event frame the fast numpy way (bincount over linear pixel indices).
 def accumulate():
     index = y.astype(np.int64) * width + x
     return np.bincount(index, weights=p, minlength=width * height).reshape(height, width)
+
 
 seconds, _ = best_of(accumulate, 5)
 report("numpy bincount signed frame", seconds, len(t))
