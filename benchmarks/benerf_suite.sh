@@ -12,7 +12,7 @@ mkdir -p "$out"
 for scene in "$suite"/*/; do
   name=$(basename "$scene")
   [ -d "$out/$name" ] && continue  # finished earlier
-  "$evkit" compare "$scene" --methods blurry,edi,benerf "${sets[@]}" --frames 1 --out "$out/$name.partial" > "$out/$name.log" 2>&1
+  "$evkit" compare "$scene" --methods blurry,edi,benerf "${sets[@]}" --latent 1 --out "$out/$name.partial" > "$out/$name.log" 2>&1
   mv "$out/$name.partial" "$out/$name"
 done
 /usr/bin/python3 "$(dirname "$0")/benerf_report.py" "$suite" "$out"

@@ -12,6 +12,7 @@
 #include "evkit/deblur/metrics.h"
 #include "evkit/deblur/observation.h"
 #include "evkit/events/image_io.h"
+#include "recording_job.h"
 
 namespace evkit::cli {
 
@@ -30,7 +31,7 @@ MethodSettings parseSettings(const po::variables_map& vm) {
 }
 
 DeblurRequest parseTimes(const po::variables_map& vm, const Observation& obs) {
-  if (!vm.count("times")) return defaultRequest(obs, vm["frames"].as<int>());
+  if (!vm.count("times")) return defaultRequest(obs, vm["latent"].as<int>());
   DeblurRequest r;
   for (const std::string& t : vm["times"].as<std::vector<std::string>>()) {
     const TimeValue v = parseTimeValue(t, "times");
@@ -49,7 +50,7 @@ Observation loadInput(const po::variables_map& vm) {
   if (vm.count("recording")) {
     if (vm.count("observation"))
       throw UsageError("give an observation folder or --recording, not both");
-    if (!vm.count("frame")) throw UsageError("--recording needs --frame N");
+    if (!vm.count("frame")) throw UsageError("--recording needs --frame N (or --frames for many)");
     Observation obs =
         observationFromRecording(vm["recording"].as<std::string>(), vm["frame"].as<size_t>(),
                                  parseTimeValue(vm["margin"].as<std::string>(), "margin").us);
@@ -75,8 +76,9 @@ void addInputOptions(po::options_description& opts) {
       "with --recording: also write the observation folder here")(
       "times", po::value<std::vector<std::string>>()->multitoken(),
       "latent frame times (µs, or +offset into the exposure)")(
-      "frames", po::value<int>()->default_value(5),
-      "without --times: this many evenly spaced latent frames (+ the middle)");
+      "latent", po::value<int>()->default_value(5),
+      "without --times: this many evenly spaced latent frames (+ the middle); with --recording "
+      "--frames: per exposure, for the video (default 10)");
 }
 
 std::string fmt(double v, const char* format) {
@@ -97,12 +99,14 @@ int runDeblur(const Args& args) {
       "method setting KEY=VALUE (repeatable; --settings lists them)")(
       "settings", "list the method's settings with their types, defaults and meaning, and exit")(
       "out", po::value<std::string>(), "output folder");
+  addRecordingJobOptions(opts);
   po::positional_options_description pos;
   pos.add("observation", 1);
   po::variables_map vm;
   if (!parseArgs(args,
                  "usage: evkit deblur OBS --method M --out DIR  |  evkit deblur --recording FILE "
-                 "--frame N --out DIR",
+                 "--frame N --out DIR  |  evkit deblur --recording FILE --frames all|A:B|A,B,C "
+                 "[--shard I/N] --out DIR",
                  opts, pos, vm)) {
     return kExitOk;
   }
@@ -116,6 +120,11 @@ int runDeblur(const Args& args) {
     return kExitOk;
   }
   if (!vm.count("out")) throw UsageError("the option '--out' is required but missing");
+  if (vm.count("frames")) {
+    if (!vm.count("recording")) throw UsageError("--frames needs --recording FILE");
+    if (vm.count("frame")) throw UsageError("give --frame N or --frames, not both");
+    return runRecordingDeblur(vm, method, parseSettings(vm));
+  }
   const Method made = makeMethod(method, parseSettings(vm));
   const Observation obs = loadInput(vm);
   const DeblurRequest request = completeRequest(obs, parseTimes(vm, obs));

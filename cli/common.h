@@ -87,6 +87,7 @@ int runFrames(const Args& args);
 int runSimulate(const Args& args);
 int runSynth(const Args& args);
 int runDeblur(const Args& args);
+int runVideo(const Args& args);
 int runCompare(const Args& args);
 int runMetrics(const Args& args);
 int runBench(const Args& args);

@@ -39,7 +39,12 @@ const std::map<std::string, Command>& commands() {
         "synthetic blurry frame + events + ground truth (an observation folder), or a suite"}},
       {"deblur",
        {evkit::cli::runDeblur,
-        "sharp frames from a blurry frame and its events (blurry, edi, benerf)"}},
+        "sharp frames from a blurry frame and its events (blurry, edi, benerf), or every frame of "
+        "a recording (--recording FILE --frames all)"}},
+      {"video",
+       {evkit::cli::runVideo,
+        "merge a recording job's frames (evkit deblur --recording --frames) into frames.csv and "
+        "one latent video"}},
       {"compare",
        {evkit::cli::runCompare,
         "run several deblurring methods on one observation: table + side-by-side PNG"}},

@@ -22,18 +22,6 @@ namespace fs = std::filesystem;
 
 namespace {
 
-cv::Mat srgb8(const cv::Mat& linear) {
-  cv::Mat f;
-  linear.convertTo(f, CV_32F);
-  cv::Mat out = f.clone();
-  float* p = out.ptr<float>();
-  for (size_t i = 0; i < out.total() * static_cast<size_t>(out.channels()); ++i) {
-    const float c = std::clamp(p[i], 0.0f, 1.0f);
-    p[i] = c <= 0.0031308f ? 12.92f * c : 1.055f * std::pow(c, 1.0f / 2.4f) - 0.055f;
-  }
-  return quantize(out, 8);
-}
-
 cv::Mat labelled(const cv::Mat& linear, const std::string& label) {
   cv::Mat img = quantize(linear, 8);
   if (img.channels() == 1) cv::cvtColor(img, img, cv::COLOR_GRAY2BGR);
@@ -139,7 +127,7 @@ void writeMethodOutputs(const std::string& dir, const Observation& obs, const Me
     cv::VideoWriter video(tmp + "/latent.avi", cv::VideoWriter::fourcc('M', 'J', 'P', 'G'), 10.0,
                           first.size(), first.channels() == 3);
     if (video.isOpened()) {
-      for (const Frame& f : report.result.frames) video.write(srgb8(f.image));
+      for (const Frame& f : report.result.frames) video.write(encodeSrgb8(f.image));
     }
   }
   if (report.result.trajectory) writeTum(tmp + "/trajectory.txt", *report.result.trajectory);

@@ -1,5 +1,6 @@
 #include "evkit/events/image_io.h"
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -38,6 +39,18 @@ Frame readImageFile(const std::string& path) {
       throwInFile(path, "unsupported pixel type (expected 8- or 16-bit)");
   }
   return frame;
+}
+
+cv::Mat encodeSrgb8(const cv::Mat& linear) {
+  cv::Mat out;
+  linear.convertTo(out, CV_32F);
+  out = out.clone();
+  float* p = out.ptr<float>();
+  for (size_t i = 0; i < out.total() * static_cast<size_t>(out.channels()); ++i) {
+    const float c = std::clamp(p[i], 0.0f, 1.0f);
+    p[i] = c <= 0.0031308f ? 12.92f * c : 1.055f * std::pow(c, 1.0f / 2.4f) - 0.055f;
+  }
+  return quantize(out, 8);
 }
 
 cv::Mat quantize(const cv::Mat& image, int bit_depth) {

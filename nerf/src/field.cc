@@ -197,22 +197,23 @@ class HashField final : public RadianceField<T> {
     const Matrix& w0 = mlp_.weights()[0];
     const Matrix& w1 = mlp_.weights()[1];
     d_features_.resize(static_cast<size_t>(features_.size()));
-    // Parameter gradients per thread, added in thread order (the same sums for a thread count).
-    const size_t threads = static_cast<size_t>(omp_get_max_threads());
-    // (The kernels accumulate the output weights' gradient transposed, in dw1t.)
-    std::vector<Matrix> dw0(threads), dw1(threads), dw1t(threads), db0(threads), db1(threads);
+    // Parameter gradients per lane (a fixed run of blocks), added in lane order: the same sums
+    // whatever the number of threads. (The kernels accumulate the output weights' gradient
+    // transposed, in dw1t.)
+    const Eigen::Index blocks = (n + kBlock - 1) / kBlock;
+    std::vector<Matrix> dw0(kLanes), dw1(kLanes), dw1t(kLanes), db0(kLanes), db1(kLanes);
     const Matrix w0t = w0.transpose(), w1t = w1.transpose();
-#pragma omp parallel
-    {
-      const size_t t = static_cast<size_t>(omp_get_thread_num());
+#pragma omp parallel for schedule(static)
+    for (size_t t = 0; t < kLanes; ++t) {
       dw0[t] = Matrix::Zero(w0.rows(), w0.cols());
       dw1[t] = Matrix::Zero(w1.rows(), w1.cols());
       dw1t[t] = Matrix::Zero(w1.cols(), w1.rows());
       db0[t] = Matrix::Zero(w0.rows(), 1);
       db1[t] = Matrix::Zero(w1.rows(), 1);
       Matrix d_out, d_hidden, d_x;
-#pragma omp for schedule(static)
-      for (Eigen::Index begin = 0; begin < n; begin += kBlock) {
+      const Eigen::Index lane = static_cast<Eigen::Index>(t), lanes = kLanes;
+      for (Eigen::Index b = blocks * lane / lanes; b < blocks * (lane + 1) / lanes; ++b) {
+        const Eigen::Index begin = b * kBlock;
         const Eigen::Index count = std::min(kBlock, n - begin);
         const auto x = features_.middleCols(begin, count);
         const auto hidden = hidden_.middleCols(begin, count);
@@ -251,8 +252,7 @@ class HashField final : public RadianceField<T> {
         scatter(begin, count, d_x);
       }
     }
-    for (size_t t = 0; t < threads; ++t) {
-      if (!dw0[t].size()) continue;
+    for (size_t t = 0; t < kLanes; ++t) {
       mlp_.weightGradients()[0] += dw0[t];
       mlp_.weightGradients()[1] += dw1[t] + dw1t[t].transpose();
       mlp_.biasGradients()[0] += db0[t];
@@ -279,6 +279,7 @@ class HashField final : public RadianceField<T> {
 
  private:
   static constexpr Eigen::Index kBlock = 256;
+  static constexpr size_t kLanes = 16;  // fixed partial sums of the backward pass
 
   // d features of samples [begin, begin + count) into the level-major layout of the grid's
   // backward.

@@ -231,15 +231,15 @@ typename HashGrid<T>::Matrix HashGrid<T>::backwardLevelMajor(const T* d_features
   const int F = config_.features;
   const T* p[3] = {positions_.col(0).data(), positions_.col(1).data(), positions_.col(2).data()};
   const uint32_t mask = static_cast<uint32_t>(entries_ - 1);
-  // Each thread owns whole levels (their table slices: no atomics) and its own position sums,
-  // added in thread order afterwards (the same sums for the same thread count).
-  std::vector<Matrix> partial(static_cast<size_t>(omp_get_max_threads()));
+  // Each level is one thread's at a time (its table slice: no atomics) with its own position
+  // sums, added in level order afterwards: the same sums whatever the number of threads.
+  std::vector<Matrix> partial(static_cast<size_t>(config_.levels));
 #pragma omp parallel
   {
-    Matrix& local = partial[static_cast<size_t>(omp_get_thread_num())];
-    local = Matrix::Zero(n, 3);  // one array per axis
 #pragma omp for schedule(static, 1)
     for (int l = 0; l < config_.levels; ++l) {
+      Matrix& local = partial[static_cast<size_t>(l)];
+      local = Matrix::Zero(n, 3);  // one array per axis
       const int res = resolution_[static_cast<size_t>(l)];
       const bool dense = dense_[static_cast<size_t>(l)];
       const size_t offset = static_cast<size_t>(l) * entries_;

@@ -13,7 +13,8 @@ py::object numpy() { return py::module_::import("numpy"); }
 template <typename T>
 py::array columnView(const std::shared_ptr<const EventStore>& store, const std::vector<T>& column) {
   auto* keep = new std::shared_ptr<const EventStore>(store);
-  py::capsule base(keep, [](void* p) { delete static_cast<std::shared_ptr<const EventStore>*>(p); });
+  py::capsule base(keep,
+                   [](void* p) { delete static_cast<std::shared_ptr<const EventStore>*>(p); });
   py::array view(py::dtype::of<T>(), {column.size()}, {sizeof(T)}, column.data(), base);
   view.attr("setflags")(py::arg("write") = false);
   return view;
@@ -97,8 +98,8 @@ void copyPolarity(const py::array& p, const std::string& what, std::vector<int8_
         np.attr("not_equal")(p, 1));
     if (p.size() > 0 && np.attr("any")(bad).cast<bool>()) {
       const size_t i = firstTrue(bad);
-      throw Error(what + ": event " + std::to_string(i) + ": p = " +
-                  py::str(p[py::int_(i)]).cast<std::string>() +
+      throw Error(what + ": event " + std::to_string(i) +
+                  ": p = " + py::str(p[py::int_(i)]).cast<std::string>() +
                   " is not a polarity (-1/+1, 0/1 or bool)");
     }
   }
@@ -152,7 +153,8 @@ std::shared_ptr<const EventStore> eventsFrom(py::handle events, SensorSize senso
     validate(resized->view(), what);
     return resized;
   }
-  const bool columns = isStructured(events) || py::isinstance<py::dict>(events) || py::hasattr(events, "keys") ||
+  const bool columns = isStructured(events) || py::isinstance<py::dict>(events) ||
+                       py::hasattr(events, "keys") ||
                        (py::isinstance<py::sequence>(events) && !py::isinstance<py::str>(events) &&
                         py::len(events) == 4);
   if (!columns) {

@@ -1,10 +1,10 @@
 // evkit.Observation, synth, deblur and the method registry.
 #include <pybind11/stl.h>
 #include <pybind11/stl/filesystem.h>
+#include <unistd.h>
 
 #include <atomic>
 #include <filesystem>
-#include <unistd.h>
 
 #include "arrays.h"
 #include "bindings.h"
@@ -46,9 +46,7 @@ Contrast contrastFromPython(py::handle c) {
 struct PyObservation {
   std::shared_ptr<Observation> obs;
 
-  Events events() const {
-    return Events(std::shared_ptr<const EventStore>(obs, &obs->events));
-  }
+  Events events() const { return Events(std::shared_ptr<const EventStore>(obs, &obs->events)); }
   py::list gtFrames() const {
     py::list out;
     for (const Frame& f : obs->gt_frames) out.append(frameToPython(f));
@@ -62,7 +60,8 @@ PyObservation makeObservation(py::handle blurry, std::pair<int64_t, int64_t> exp
   obs->blurry.image = arrayToImage(blurry, "blurry", &obs->blurry.bit_depth);
   obs->blurry.exposure_start_us = exposure.first;
   obs->blurry.exposure_end_us = exposure.second;
-  if (exposure.second <= exposure.first) throw Error("exposure: (start_us, end_us) with end > start");
+  if (exposure.second <= exposure.first)
+    throw Error("exposure: (start_us, end_us) with end > start");
   const SensorSize sensor{obs->blurry.image.cols, obs->blurry.image.rows};
   obs->events = *eventsFrom(events, sensor, "events");
   obs->camera = calib.is_none() ? synth::defaultCamera(sensor.width, sensor.height)
@@ -186,8 +185,9 @@ PyObservation synthesize(const std::string& scene, std::optional<fs::path> out, 
   if (width < 8 || height < 8 || !(blur_px > 0) || exposure_us <= 0 || !(contrast > 0) ||
       !(sigma >= 0) || !(shot_noise_hz >= 0) || !(leak_hz >= 0) || preroll_us < 0 ||
       !(rotation_share >= 0 && rotation_share <= 1)) {
-    throw Error("synth: width, height >= 8; blur_px, exposure_us, contrast > 0; sigma, "
-                "shot_noise_hz, leak_hz, preroll_us >= 0; rotation_share in [0, 1]");
+    throw Error(
+        "synth: width, height >= 8; blur_px, exposure_us, contrast > 0; sigma, "
+        "shot_noise_hz, leak_hz, preroll_us >= 0; rotation_share in [0, 1]");
   }
   synth::SceneOptions so;
   so.colour = colour;
@@ -201,11 +201,11 @@ PyObservation synthesize(const std::string& scene, std::optional<fs::path> out, 
     }
   }
   const bool temporary = !out;
-  const std::string dir = out ? out->string()
-                              : (fs::temp_directory_path() /
-                                 ("evkit-synth-" + std::to_string(getpid()) + "-" +
-                                  std::to_string(reinterpret_cast<uintptr_t>(&o))))
-                                    .string();
+  const std::string dir =
+      out ? out->string()
+          : (fs::temp_directory_path() / ("evkit-synth-" + std::to_string(getpid()) + "-" +
+                                          std::to_string(reinterpret_cast<uintptr_t>(&o))))
+                .string();
   auto obs = std::make_shared<Observation>();
   {
     py::gil_scoped_release release;
@@ -276,25 +276,38 @@ exposure (start_us, end_us); events as evkit.write takes them (inside the image)
             asFileError([&] { saveObservation(*o.obs, folder.string()); });
           },
           py::arg("folder"), "Writes it as an observation folder (atomically).")
-      .def_property_readonly("blurry", [](const PyObservation& o) { return imageToArray(o.obs->blurry.image); })
-      .def_property_readonly("exposure", [](const PyObservation& o) {
-        return std::make_pair(o.obs->blurry.exposure_start_us, o.obs->blurry.exposure_end_us);
-      }, "(start_us, end_us)")
+      .def_property_readonly(
+          "blurry", [](const PyObservation& o) { return imageToArray(o.obs->blurry.image); })
+      .def_property_readonly(
+          "exposure",
+          [](const PyObservation& o) {
+            return std::make_pair(o.obs->blurry.exposure_start_us, o.obs->blurry.exposure_end_us);
+          },
+          "(start_us, end_us)")
       .def_property_readonly("events", &PyObservation::events, "evkit.Events (a view, no copy)")
-      .def_property_readonly("calib", [](const PyObservation& o) { return cameraToPython(o.obs->camera); },
-                             "The camera: {fx, fy, cx, cy, distortion, width, height}")
-      .def_property_readonly("contrast", [](const PyObservation& o) -> py::object {
-        if (!o.obs->contrast) return py::none();
-        return py::make_tuple(o.obs->contrast->on, o.obs->contrast->off);
-      }, "(C_on, C_off) when known, else None")
+      .def_property_readonly(
+          "calib", [](const PyObservation& o) { return cameraToPython(o.obs->camera); },
+          "The camera: {fx, fy, cx, cy, distortion, width, height}")
+      .def_property_readonly(
+          "contrast",
+          [](const PyObservation& o) -> py::object {
+            if (!o.obs->contrast) return py::none();
+            return py::make_tuple(o.obs->contrast->on, o.obs->contrast->off);
+          },
+          "(C_on, C_off) when known, else None")
       .def_property_readonly("gt_frames", &PyObservation::gtFrames,
                              "Ground-truth sharp frames (evkit.Frame, exposure_start = their time)")
-      .def_property_readonly("gt_poses", [](const PyObservation& o) -> py::object {
-        if (o.obs->gt_poses.empty()) return py::none();
-        return poseRows(o.obs->gt_poses);
-      }, "Ground-truth trajectory, N x 8 TUM rows (t s, tx ty tz, qx qy qz qw), or None")
-      .def_property_readonly("width", [](const PyObservation& o) { return o.obs->blurry.image.cols; })
-      .def_property_readonly("height", [](const PyObservation& o) { return o.obs->blurry.image.rows; })
+      .def_property_readonly(
+          "gt_poses",
+          [](const PyObservation& o) -> py::object {
+            if (o.obs->gt_poses.empty()) return py::none();
+            return poseRows(o.obs->gt_poses);
+          },
+          "Ground-truth trajectory, N x 8 TUM rows (t s, tx ty tz, qx qy qz qw), or None")
+      .def_property_readonly("width",
+                             [](const PyObservation& o) { return o.obs->blurry.image.cols; })
+      .def_property_readonly("height",
+                             [](const PyObservation& o) { return o.obs->blurry.image.rows; })
       .def_property_readonly("source", [](const PyObservation& o) { return o.obs->source; })
       .def("__repr__", [](const PyObservation& o) {
         return "<evkit.Observation " + std::to_string(o.obs->blurry.image.cols) + "x" +

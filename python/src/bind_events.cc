@@ -114,14 +114,15 @@ class Stream {
 
 void writeFile(const std::filesystem::path& file, py::handle events, py::object frames,
                std::optional<int> width, std::optional<int> height,
-               const std::optional<std::string>& format, const std::optional<std::string>& compression,
-               int level) {
+               const std::optional<std::string>& format,
+               const std::optional<std::string>& compression, int level) {
   const std::string path = file.string();
   const auto store = eventsFrom(events, sensorArg(width, height), "events");
   std::vector<Frame> frame_list;
   if (!frames.is_none()) {
     size_t i = 0;
-    for (py::handle f : frames) frame_list.push_back(frameFromPython(f, "frame " + std::to_string(i++)));
+    for (py::handle f : frames)
+      frame_list.push_back(frameFromPython(f, "frame " + std::to_string(i++)));
   }
   SensorSize sensor = store->sensor();
   for (const Frame& f : frame_list) {
@@ -160,7 +161,8 @@ py::array accumulate(py::handle events, std::optional<int> width, std::optional<
   const auto store = eventsFrom(events, sensorArg(width, height), "events");
   const EventSpan view = store->view();
   if (repr == "frame") {
-    return imageToArray(accumulateSigned(view, static_cast<float>(c_on), static_cast<float>(c_off)));
+    return imageToArray(
+        accumulateSigned(view, static_cast<float>(c_on), static_cast<float>(c_off)));
   }
   if (repr == "counts") {
     const PolarityCounts c = accumulateCounts(view);
@@ -240,8 +242,9 @@ Events simulate(py::handle frames, py::handle timestamps_us, double contrast,
   o.log.eps = eps;
   if (!(o.contrast_pos > 0) || !(o.contrast_neg > 0) || !(sigma >= 0) || refractory_us < 0 ||
       !(shot_noise_hz >= 0) || !(leak_hz >= 0) || !(eps > 0)) {
-    throw Error("simulate: contrast and eps must be positive; sigma, refractory_us, shot_noise_hz "
-                "and leak_hz not negative");
+    throw Error(
+        "simulate: contrast and eps must be positive; sigma, refractory_us, shot_noise_hz "
+        "and leak_hz not negative");
   }
   auto out = std::make_shared<EventStore>();
   std::optional<EventSimulator> sim;
@@ -256,8 +259,7 @@ Events simulate(py::handle frames, py::handle timestamps_us, double contrast,
     } else if (image.cols != out->sensor().width || image.rows != out->sensor().height) {
       throw Error(what + ": its size differs from the first frame's");
     }
-    if (i > 0 && times.at(i) <= times.at(i - 1))
-      throw Error(what + ": timestamps must increase");
+    if (i > 0 && times.at(i) <= times.at(i - 1)) throw Error(what + ": timestamps must increase");
     py::gil_scoped_release release;
     sim->addFrame(image, times.at(i), *out);
     ++i;
@@ -283,8 +285,9 @@ t (int64 µs), x, y (uint16), p (int8, ±1) are read-only column views of the C+
       .def("__len__", [](const Events& e) { return e.get().size(); })
       .def("__repr__", [](py::object self) {
         const EventStore& s = self.cast<const Events&>().get();
-        std::string r = "<evkit." + py::type::of(self).attr("__name__").cast<std::string>() + " " + std::to_string(s.size()) + " events, " +
-                        std::to_string(s.sensor().width) + "x" + std::to_string(s.sensor().height);
+        std::string r = "<evkit." + py::type::of(self).attr("__name__").cast<std::string>() + " " +
+                        std::to_string(s.size()) + " events, " + std::to_string(s.sensor().width) +
+                        "x" + std::to_string(s.sensor().height);
         if (!s.empty())
           r += ", t " + std::to_string(s.t.front()) + ".." + std::to_string(s.t.back()) + " us";
         return r + ">";
@@ -305,8 +308,9 @@ t (int64 µs), x, y (uint16), p (int8, ±1) are read-only column views of the C+
       .def_readonly("exposure_start", &PyFrame::exposure_start, "µs")
       .def_readonly("exposure_end", &PyFrame::exposure_end, "µs")
       .def_readonly("bit_depth", &PyFrame::bit_depth, "8 or 16: the source's depth.")
-      .def("__array__", [](const PyFrame& f, py::object) { return f.image; },
-           py::arg("dtype") = py::none())
+      .def(
+          "__array__", [](const PyFrame& f, py::object) { return f.image; },
+          py::arg("dtype") = py::none())
       .def("__repr__", [](const PyFrame& f) {
         return "<evkit.Frame " + py::str(f.image.attr("shape")).cast<std::string>() +
                ", exposure " + std::to_string(f.exposure_start) + ".." +
@@ -344,8 +348,7 @@ memory at a time. `start`/`end` (µs) restrict to [start, end); formats with an 
 
   m.def("write", &writeFile, py::arg("path"), py::arg("events"), py::arg("frames") = py::none(),
         py::arg("width") = py::none(), py::arg("height") = py::none(),
-        py::arg("format") = py::none(), py::arg("compression") = py::none(),
-        py::arg("level") = 1,
+        py::arg("format") = py::none(), py::arg("compression") = py::none(), py::arg("level") = 1,
         R"(Writes events (and frames) to a file; the format from the extension unless named.
 
 `events`: evkit.Events, a structured array or dict with fields t, x, y, p, or a tuple of the four
@@ -372,8 +375,9 @@ E2VID's bilinear voxel grid over [t0, t1] (the events' span by default).)");
       .def_readonly("t_end", &Window::t_end, "µs, excluded")
       .def_readonly("events", &Window::events)
       .def("__repr__", [](const Window& w) {
-        return "<evkit.Window " + std::to_string(w.index) + ": " + std::to_string(w.events.get().size()) +
-               " events in [" + std::to_string(w.t_begin) + ", " + std::to_string(w.t_end) + ") us>";
+        return "<evkit.Window " + std::to_string(w.index) + ": " +
+               std::to_string(w.events.get().size()) + " events in [" + std::to_string(w.t_begin) +
+               ", " + std::to_string(w.t_end) + ") us>";
       });
   py::class_<Slicer>(m, "EventSlicer", R"(Cuts a stream into windows by time or by count, in
 bounded memory, as dv-processing's EventStreamSlicer: feed chunks in time order with accept(),
@@ -393,10 +397,12 @@ which returns the windows they completed; finish() returns the last, partial one
             return Slicer(EventSlicer::byCount(count, {width, height}));
           },
           py::arg("count"), py::arg("width") = 0, py::arg("height") = 0, "Windows of count events.")
-      .def("set_origin", [](Slicer& s, int64_t t) { s.get().setOrigin(t); }, py::arg("t_us"),
-           "Before the first accept(): where the first window starts.")
-      .def("set_end", [](Slicer& s, int64_t t) { s.get().setEnd(t); }, py::arg("t_us"),
-           "Before the first accept(): events from t_us on are ignored.")
+      .def(
+          "set_origin", [](Slicer& s, int64_t t) { s.get().setOrigin(t); }, py::arg("t_us"),
+          "Before the first accept(): where the first window starts.")
+      .def(
+          "set_end", [](Slicer& s, int64_t t) { s.get().setEnd(t); }, py::arg("t_us"),
+          "Before the first accept(): events from t_us on are ignored.")
       .def("accept", &Slicer::accept, py::arg("events"),
            "Feeds the next events; returns the windows they completed.")
       .def("finish", &Slicer::finish, "Returns what is left (the last, partial window).");

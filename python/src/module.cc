@@ -14,12 +14,12 @@ PYBIND11_MODULE(_evkit, m) {
   // the one-line message the command line prints.
   static py::exception<evkit::Error> error(m, "Error", PyExc_ValueError);
   error.attr("__module__") = "evkit";
-  error.doc() = "A problem with evkit's input: the message names the file, the position and what "
-                "was expected.";
+  error.doc() =
+      "A problem with evkit's input: the message names the file, the position and what "
+      "was expected.";
   py::tuple bases = py::make_tuple(error, py::handle(PyExc_OSError));
-  static py::object file_error = py::reinterpret_steal<py::object>(
-      PyErr_NewExceptionWithDoc("evkit.FileError", "A bad or unreadable file (evkit.Error, OSError).",
-                                bases.ptr(), nullptr));
+  static py::object file_error = py::reinterpret_steal<py::object>(PyErr_NewExceptionWithDoc(
+      "evkit.FileError", "A bad or unreadable file (evkit.Error, OSError).", bases.ptr(), nullptr));
   m.attr("FileError") = file_error;
   py::register_exception_translator([](std::exception_ptr p) {
     try {

@@ -44,6 +44,12 @@ class SceneSource final : public RenderSource {
     return image;
   }
   int64_t renders() const { return renders_; }
+  // The ground truth at t: rendered as the events see it, clipped as a sensor's frame is not.
+  cv::Mat sharp(int64_t t_us) const {
+    cv::Mat image = synth::render(scene_, camera_, w_, h_, pose(t_us), options_);
+    if (gain_ != 1.0) image *= gain_;
+    return image;
+  }
 
  private:
   const Scene& scene_;
@@ -56,6 +62,18 @@ class SceneSource final : public RenderSource {
   SE3 start_;
   Vector6 velocity_per_us_;
 };
+
+// Never rejecting, a fixed step: the image moves by at most max_motion_px between two renders
+// when the camera's path over `duration_us` moves a point by `blur_px`.
+AdaptiveOptions uniformSampling(int64_t duration_us, double blur_px, double max_motion_px) {
+  AdaptiveOptions uniform;
+  uniform.lambda = 1e30;
+  uniform.min_step_us = uniform.max_step_us =
+      std::clamp<int64_t>(static_cast<int64_t>(static_cast<double>(duration_us) * max_motion_px /
+                                               std::max(blur_px, 1e-9)),
+                          1, std::max<int64_t>(1, duration_us / 50));
+  return uniform;
+}
 
 Trajectory scaled(const std::vector<Vector6>& xi, double s, int64_t t0, int64_t t1) {
   std::vector<SE3> knots;
@@ -180,14 +198,9 @@ SynthReport writeObservation(const Scene& scene, const SynthOptions& o, const st
   auto writer = openWriter(tmp + "/events.h5", Format::kHdf5, SensorSize{o.width, o.height});
   cv::Mat blurry;
   int64_t written = 0;
-  AdaptiveOptions uniform;
-  uniform.lambda = 1e30;  // never reject: a fixed step from the blur length
-  uniform.min_step_us = uniform.max_step_us =
-      std::clamp<int64_t>(static_cast<int64_t>(static_cast<double>(t1 - t0) * o.max_motion_px /
-                                               std::max(report.blur_px, 1e-9)),
-                          1, (t1 - t0) / 50);
   const SimulatorStats stats =
-      simulateAdaptive(source, t0 - o.preroll_us, t1, driver, uniform,
+      simulateAdaptive(source, t0 - o.preroll_us, t1, driver,
+                       uniformSampling(t1 - t0, report.blur_px, o.max_motion_px),
                        [&](const EventStore& ev, const std::vector<Frame>& done) {
                          // The pre-roll's events only set each pixel's reference level.
                          const EventSpan kept = ev.sliceTime(t0, t1 + 1);
@@ -207,13 +220,7 @@ SynthReport writeObservation(const Scene& scene, const SynthOptions& o, const st
   writeCalibration(tmp + "/calib.txt", camera);
 
   // Ground truth: sharp frames, poses, knots, depth at mid-exposure.
-  RenderOptions ro;
-  ro.supersample = o.supersample;
-  const auto sharp_at = [&](int64_t t) {
-    cv::Mat image = render(scene, camera, o.width, o.height, traj.poseAt(t), ro);
-    if (o.gain != 1.0) image *= o.gain;
-    return image;
-  };
+  const auto sharp_at = [&](int64_t t) { return source.sharp(t); };
   const int sharp = std::max(2, o.sharp_frames);
   for (int k = 0; k < sharp; ++k) {
     const int64_t t = t0 + (t1 - t0) * k / (sharp - 1);
@@ -245,6 +252,82 @@ SynthReport writeObservation(const Scene& scene, const SynthOptions& o, const st
        << "\nknots_kind cubic\n"
        << "knot_times " << t0 << ' ' << t1 << "\n";
   std::ofstream(tmp + "/gt/info.txt") << info.str();
+  out.commit();
+  return report;
+}
+
+}  // namespace evkit::synth
+
+namespace evkit::synth {
+
+RecordingReport writeSyntheticRecording(const Scene& scene, const SynthOptions& o,
+                                        const RecordingOptions& r, const std::string& dir) {
+  if (r.frames < 1 || r.frame_interval_us <= o.exposure_us)
+    throw Error("a recording needs at least one frame, and frames further apart than the exposure");
+  const Calibration camera = defaultCamera(o.width, o.height);
+  const int64_t t0 = o.t_begin_us;
+  const int64_t t_end = t0 + (r.frames - 1) * r.frame_interval_us + o.exposure_us;
+  // One shake through the whole recording: knots for each exposure, and about blur_px of image
+  // motion per exposure (the path grows with the duration).
+  ShakeOptions shake = o.shake;
+  shake.knots = std::max(4, o.shake.knots * r.frames);
+  shake.blur_px = o.shake.blur_px * static_cast<double>(t_end - t0) / o.exposure_us;
+  const Trajectory traj = makeShake(scene, camera, o.width, o.height, t0, t_end, shake);
+  const double path_px = blurLengthPx(traj, scene, camera, o.width, o.height);
+
+  AtomicPath out(dir);
+  const std::string tmp = out.temporaryPath();
+  fs::create_directories(tmp + "/gt");
+  const SensorSize sensor{o.width, o.height};
+  auto aedat4 = openWriter(tmp + "/recording.aedat4", Format::kAedat4, sensor);
+  auto hdf5 = openWriter(tmp + "/recording.h5", Format::kHdf5, sensor);
+  DriverOptions driver;
+  driver.simulator = o.simulator;
+  for (int k = 0; k < r.frames; ++k) {
+    const int64_t start = t0 + k * r.frame_interval_us;
+    driver.exposures.push_back({start, start + o.exposure_us});
+  }
+  const auto dropped = [&](int64_t t) {
+    if (r.drop_frame_events < 0 || r.drop_frame_events >= r.frames) return false;
+    const auto& e = driver.exposures[static_cast<size_t>(r.drop_frame_events)];
+    return t >= e.start_us && t <= e.end_us;
+  };
+  SceneSource source(scene, camera, o.width, o.height, traj, o.supersample, o.gain);
+  RecordingReport report;
+  report.frames = r.frames;
+  simulateAdaptive(source, t0 - o.preroll_us, t_end, driver,
+                   uniformSampling(t_end - t0, path_px, o.max_motion_px),
+                   [&](const EventStore& ev, const std::vector<Frame>& done) {
+                     EventStore kept(sensor);
+                     const EventSpan recorded = ev.sliceTime(t0, t_end + 1);
+                     for (size_t i = 0; i < recorded.size(); ++i) {
+                       if (!dropped(recorded.t[i]))
+                         kept.push_back(recorded.t[i], recorded.x[i], recorded.y[i], recorded.p[i]);
+                     }
+                     aedat4->write(kept.view());
+                     hdf5->write(kept.view());
+                     report.events += static_cast<int64_t>(kept.size());
+                     for (Frame f : done) {
+                       f.bit_depth = 16;
+                       aedat4->writeFrame(f);
+                       hdf5->writeFrame(f);
+                     }
+                   });
+  aedat4->close();
+  hdf5->close();
+  report.renders = source.renders();
+
+  std::ofstream(tmp + "/contrast.txt")
+      << o.simulator.contrast_pos << ' ' << o.simulator.contrast_neg << '\n';
+  writeCalibration(tmp + "/calib.txt", camera);
+  std::vector<int64_t> times;
+  for (const auto& e : driver.exposures) {
+    const int64_t mid = e.start_us + (e.end_us - e.start_us) / 2;
+    for (int64_t t : {e.start_us, mid, e.end_us})
+      writeImageFile(tmp + "/gt/" + std::to_string(t) + ".png", source.sharp(t), 16);
+    for (int k = 0; k <= 100; ++k) times.push_back(e.start_us + (e.end_us - e.start_us) * k / 100);
+  }
+  writeTum(tmp + "/gt/poses.txt", sampleTrajectory(traj, times));
   out.commit();
   return report;
 }

@@ -248,7 +248,7 @@ TEST(Cli, DeblurCompareAndMetricsOnASyntheticObservation) {
       "synth --preset text --size 80x60 --blur-px 8 --exposure-us 20000 --out " + (dir / "obs"),
       dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
-  r = runEvkit("deblur " + (dir / "obs") + " --method edi --frames 3 --out " + (dir / "edi"), dir);
+  r = runEvkit("deblur " + (dir / "obs") + " --method edi --latent 3 --out " + (dir / "edi"), dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.err.find("edi: 3 frames"), std::string::npos)
       << r.err;  // start, middle, end (= gt times)
@@ -291,7 +291,7 @@ TEST(Cli, DeblurWithBenerfWritesFramesTrajectoryDisparityCurveAndCheckpoint) {
   r = runEvkit(
       "deblur " + (dir / "obs") +
           " --method benerf --set budget=fast --set iterations=30 --set rays=128 --set samples=8 " +
-          "--set checkpoint=" + (dir / "ckpt") + " --frames 3 --out " + (dir / "nerf"),
+          "--set checkpoint=" + (dir / "ckpt") + " --latent 3 --out " + (dir / "nerf"),
       dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.err.find("benerf: 3 frames"), std::string::npos) << r.err;
@@ -312,7 +312,7 @@ TEST(Cli, DeblurWithBenerfWritesFramesTrajectoryDisparityCurveAndCheckpoint) {
   r = runEvkit(
       "deblur " + (dir / "obs") +
           " --method benerf --set budget=fast --set iterations=30 --set rays=128 --set samples=8 " +
-          "--set resume=" + (dir / "ckpt") + " --frames 3 --out " + (dir / "again"),
+          "--set resume=" + (dir / "ckpt") + " --latent 3 --out " + (dir / "again"),
       dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_EQ(test::readText(dir / "again/1600000000010000.png"),

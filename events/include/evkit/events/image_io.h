@@ -20,6 +20,9 @@ void writeImageFile(const std::string& path, const cv::Mat& image, int bit_depth
 
 // Converts a float [0,1] image to CV_8U/CV_16U with rounding and clamping (NaN -> 0).
 cv::Mat quantize(const cv::Mat& image, int bit_depth);
+// A linear [0,1] image encoded with the sRGB curve in 8 bits: a copy for viewing (videos), never
+// instead of the linear files.
+cv::Mat encodeSrgb8(const cv::Mat& linear);
 
 // A folder of frames: one PNG per frame (linear, the frame's bit depth) and frames.csv
 // ("index,exposure_start_us,exposure_end_us,file"). Used beside text files, which cannot hold

@@ -126,6 +126,28 @@ struct SynthReport {
 SynthReport writeObservation(const Scene& scene, const SynthOptions& options,
                              const std::string& dir);
 
+// A recording of several blurry frames with the continuous events between them, as a DAVIS
+// writes it: the camera shakes through the whole recording (a longer spline with more knots),
+// `frames` exposures of options.exposure_us start every `frame_interval_us`, and each exposure
+// has about options.shake.blur_px of blur. Writes, complete or not at all:
+//   recording.aedat4 and recording.h5  events and the blurry frames (16-bit) with their exposures;
+//   calib.txt, contrast.txt            the camera and the thresholds;
+//   gt/<t_us>.png                      sharp frames at each exposure's start, middle and end;
+//   gt/poses.txt                       the camera (TUM, T_world_cam), 101 poses per exposure.
+struct RecordingOptions {
+  int frames = 3;
+  int64_t frame_interval_us = 150'000;  // exposure start to exposure start (> exposure_us)
+  // With `drop_frame_events` >= 0, that frame's exposure has no events (lost in transfer).
+  int drop_frame_events = -1;
+};
+struct RecordingReport {
+  int frames = 0;
+  int64_t events = 0;
+  int64_t renders = 0;
+};
+RecordingReport writeSyntheticRecording(const Scene& scene, const SynthOptions& options,
+                                        const RecordingOptions& recording, const std::string& dir);
+
 // A named suite: observation folders <dir>/<name>.
 //  - standard: the 5 presets x blur {15, 40} px, noiseless events, C = 0.2 (<scene>_blur<px>);
 //  - noisy: the same 10 scenes with DAVIS-like event noise: per-pixel threshold mismatch 0.03,
@@ -148,8 +170,8 @@ struct SuiteEntry {
   double contrast = 0.2;
   double sigma = 0, shot_noise_hz = 0, leak_hz = 0;
   bool drop_events = false;
-  uint64_t seed = 0;            // of the shake; 0: the options' own
-  double rotation_share = 0.7;  // ShakeOptions::rotation_share
+  uint64_t seed = 0;                   // of the shake; 0: the options' own
+  double rotation_share = 0.7;         // ShakeOptions::rotation_share
   bool share_of_image_motion = false;  // ShakeOptions::share_of_image_motion
   int64_t preroll_us = 0;
 
