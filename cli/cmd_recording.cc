@@ -101,8 +101,12 @@ int runRecordingDeblur(const po::variables_map& vm, const std::string& method,
         if (!o.ok) {
           ++failed;
           bar->finish();
-          std::fprintf(stderr, "evkit deblur: %s frame %zu: %s\n", job.recording.c_str(),
-                       o.frame.index, o.message.c_str());
+          // One line naming the file and the frame (the reader's messages start with the file).
+          if (o.message.rfind(job.recording + ": ", 0) == 0)
+            std::fprintf(stderr, "evkit deblur: %s\n", o.message.c_str());
+          else
+            std::fprintf(stderr, "evkit deblur: %s: frame %zu: %s\n", job.recording.c_str(),
+                         o.frame.index, o.message.c_str());
         }
         bar->update(static_cast<int64_t>(done),
                     std::to_string(failed) + " failed" + (o.skipped ? ", skipped finished" : ""));

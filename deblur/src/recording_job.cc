@@ -425,6 +425,17 @@ MergeSummary mergeRecordingJob(const std::string& dir, const VideoOptions& video
   }
   writeFileAtomically(dir + "/frames.csv", csv);
   if (png_dir) png_dir->commit();
+  if (summary.missing == 0) {
+    // Every frame has its row, so no worker writes any more: what a killed worker left half
+    // written (a frame's temporary folder, a row's temporary file) can go.
+    for (const char* sub : {"/frames", "/manifest"}) {
+      std::error_code ec;
+      for (const auto& e : fs::directory_iterator(dir + sub, ec)) {
+        if (e.path().filename().string().find(".tmp-") != std::string::npos)
+          fs::remove_all(e.path(), ec);
+      }
+    }
+  }
   return summary;
 }
 
