@@ -13,6 +13,7 @@ packages=(
   clang libclang-rt-14-dev
   python3 python3-h5py python3-numpy python3-lz4
   python3-dev pybind11-dev python3-pytest python3-matplotlib  # the Python module, its tests, examples
+  slurmctld slurmd slurm-client munge  # the Slurm integration test (a single node on localhost)
   python3-skimage  # its CC0 / public-domain photographs: the natural suite's scenes
 )
 
