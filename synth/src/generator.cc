@@ -267,10 +267,11 @@ RecordingReport writeSyntheticRecording(const Scene& scene, const SynthOptions& 
   const Calibration camera = defaultCamera(o.width, o.height);
   const int64_t t0 = o.t_begin_us;
   const int64_t t_end = t0 + (r.frames - 1) * r.frame_interval_us + o.exposure_us;
-  // One shake through the whole recording: knots for each exposure, and about blur_px of image
-  // motion per exposure (the path grows with the duration).
+  // One shake through the whole recording, as smooth as a single observation's: one spline
+  // segment (knot spacing) per exposure time, as makeShake's 4 knots give one observation; and
+  // about blur_px of image motion per exposure (the path grows with the duration).
   ShakeOptions shake = o.shake;
-  shake.knots = std::max(4, o.shake.knots * r.frames);
+  shake.knots = 3 + static_cast<int>((t_end - t0 + o.exposure_us - 1) / o.exposure_us);
   shake.blur_px = o.shake.blur_px * static_cast<double>(t_end - t0) / o.exposure_us;
   const Trajectory traj = makeShake(scene, camera, o.width, o.height, t0, t_end, shake);
   const double path_px = blurLengthPx(traj, scene, camera, o.width, o.height);
