@@ -65,6 +65,32 @@ std::vector<std::string> csvRows(const std::string& path) {
   return rows;
 }
 
+TEST_F(RecordingJobTest, SyntheticRecordingHoldsItsFramesInBothFormats) {
+  const Recording a = readRecording(rec("recording.aedat4"));
+  const Recording h = readRecording(rec("recording.h5"));
+  ASSERT_EQ(a.frames.size(), 4u);
+  ASSERT_EQ(h.frames.size(), 4u);
+  for (size_t k = 0; k < 4; ++k) {
+    const int64_t start = 1'600'000'000'000'000 + 50'000 * static_cast<int64_t>(k);
+    EXPECT_EQ(a.frames[k].exposure_start_us, start);
+    EXPECT_EQ(a.frames[k].exposure_end_us, start + 40'000);
+    EXPECT_EQ(h.frames[k].exposure_start_us, start);
+    EXPECT_EQ(a.frames[k].image.size(), cv::Size(48, 36));
+    EXPECT_EQ(cv::norm(a.frames[k].image, h.frames[k].image, cv::NORM_INF), 0.0);
+    // Ground truth at the exposure's start, middle and end.
+    for (int64_t t : {start, start + 20'000, start + 40'000})
+      EXPECT_TRUE(fs::exists(rec("gt/" + std::to_string(t) + ".png"))) << t;
+  }
+  EXPECT_EQ(a.events.t, h.events.t);
+  EXPECT_EQ(a.events.p, h.events.p);
+  // Continuous events between the exposures, none in frame 2's (its events were dropped).
+  const auto in = [&](int64_t t0, int64_t t1) { return a.events.sliceTime(t0, t1).size(); };
+  const int64_t t0 = 1'600'000'000'000'000;
+  EXPECT_GT(in(t0 + 40'001, t0 + 50'000), 100u);
+  EXPECT_EQ(in(t0 + 100'000, t0 + 140'001), 0u);
+  EXPECT_GT(in(t0 + 150'000, t0 + 190'001), 1000u);
+}
+
 TEST_F(RecordingJobTest, ThreeShardsMergedEqualOneRun) {
   ScratchDir dir;
   const std::string common = "deblur --recording " + rec("recording.h5") +
