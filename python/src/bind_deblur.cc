@@ -277,7 +277,13 @@ exposure (start_us, end_us); events as evkit.write takes them (inside the image)
           },
           py::arg("folder"), "Writes it as an observation folder (atomically).")
       .def_property_readonly(
-          "blurry", [](const PyObservation& o) { return imageToArray(o.obs->blurry.image); })
+          "blurry",
+          [](const PyObservation& o) {
+            py::array a = imageToArray(o.obs->blurry.image);  // grey: a view of the observation's
+            a.attr("setflags")(py::arg("write") = false);
+            return a;
+          },
+          "The blurry frame, float32 linear [0, 1] (RGB for colour); read-only")
       .def_property_readonly(
           "exposure",
           [](const PyObservation& o) {

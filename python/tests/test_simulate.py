@@ -50,6 +50,7 @@ def test_observation_from_arrays(tmp_path):
     ev = src.events.events  # a structured array
     obs = evkit.Observation(src.blurry, src.exposure, ev, calib=(43.2, 43.2, 23.5, 17.5), contrast=0.2)
     assert obs.calib["fx"] == 43.2 and obs.contrast == (0.2, 0.2) and obs.gt_poses is None
+    assert not obs.blurry.flags.writeable  # a view of the observation's own frame
     np.testing.assert_array_equal(obs.events.x, src.events.x)
     obs.save(tmp_path / "saved")
     back = evkit.Observation.load(tmp_path / "saved")

@@ -121,6 +121,12 @@ TEST_F(RecordingJobTest, ThreeShardsMergedEqualOneRun) {
   }
   EXPECT_GE(compared, 4 * 5);  // 4 latent frames + the middle per exposure
   EXPECT_EQ(readText(dir / "one/latent.avi"), readText(dir / "three/latent.avi"));
+  // The same merge as MPEG-4 with the video's frames as PNG.
+  r = runEvkit("video " + (dir / "three") + " --video latent.mp4 --video-png", dir);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_GT(fs::file_size(dir / "three/latent.mp4"), 1000u);
+  EXPECT_TRUE(fs::exists(dir / "three/video/000015.png"));
+  EXPECT_FALSE(fs::exists(dir / "three/video/000016.png"));
   // Ground truth where it exists: every frame has its PSNR.
   for (const std::string& row : csvRows(dir / "one/frames.csv"))
     EXPECT_EQ(row.find("null"), std::string::npos) << row;
