@@ -28,6 +28,7 @@ from ._evkit import (  # noqa: F401  (the public API)
     Window,
     accumulate,
     deblur,
+    deblur_recording,
     method_help,
     methods,
     open,

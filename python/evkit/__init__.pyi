@@ -192,6 +192,15 @@ def deblur(observation: Observation, method: str = "edi",
            **settings: Any) -> DeblurResult:
     """Deblurs an observation with 'edi', 'benerf' or 'blurry'; settings as evkit.method_help."""
 
+def deblur_recording(recording: PathLike, out: PathLike, frames: str = "all", method: str = "edi",
+                     shard: str = "0/1", latent: int = 10, calib: Union[PathLike, None] = None,
+                     ground_truth: Union[PathLike, None] = None, filter_hot_pixels: bool = False,
+                     seed: int = 1, merge: bool = True, video: str = "latent.avi",
+                     video_fps: float = 30.0,
+                     progress: Union[Callable[[int, int, int, str], Any], None] = None,
+                     **settings: Any) -> dict[str, Any]:
+    """Deblurs every chosen frame of a recording into `out` (evkit deblur --recording); resumable."""
+
 def methods() -> list[str]:
     """The deblurring methods' names."""
 

@@ -3,12 +3,12 @@
 #include <pybind11/stl/filesystem.h>
 #include <unistd.h>
 
-#include <atomic>
 #include <filesystem>
 
 #include "arrays.h"
 #include "bindings.h"
 #include "evkit/deblur/evaluate.h"
+#include "evkit/deblur/recording_job.h"
 #include "evkit/synth/generator.h"
 
 namespace evkit::python {
@@ -163,6 +163,45 @@ PyResult deblur(const PyObservation& o, const std::string& name, py::object time
                                                 : py::object(imageToArray(report.result.disparity));
   r.summary = summaryOf(obs, method, report);
   return r;
+}
+
+py::dict deblurRecording(const fs::path& recording, const fs::path& out, const std::string& frames,
+                         const std::string& method, const std::string& shard, int latent,
+                         std::optional<fs::path> calib, std::optional<fs::path> ground_truth,
+                         bool filter_hot_pixels, uint64_t seed, bool merge,
+                         const std::string& video, double video_fps, py::object progress,
+                         py::kwargs settings) {
+  RecordingJob job;
+  job.recording = recording.string();
+  job.frames = frames;
+  job.method = method;
+  for (auto [k, v] : settings) job.settings[k.cast<std::string>()] = settingText(v);
+  if (job.settings.count("seed"))
+    throw Error("deblur_recording: frames are seeded by seed= (frame i: seed + i), not a setting");
+  job.latent_per_exposure = latent;
+  if (calib) job.calib = calib->string();
+  if (ground_truth) job.ground_truth = ground_truth->string();
+  if (filter_hot_pixels) job.noise_filter = NoiseFilterOptions{};
+  job.seed = seed;
+  VideoOptions v;
+  v.file = video;
+  v.fps = video_fps;
+  // Between frames: the caller's callback, and Ctrl-C (KeyboardInterrupt) or the callback's own
+  // exception stops the job; finished frames stay finished, so a later call resumes.
+  const auto report = [&progress](size_t done, size_t total, const FrameOutcome& o) {
+    py::gil_scoped_acquire gil;
+    if (PyErr_CheckSignals() != 0) throw py::error_already_set();
+    if (!progress.is_none()) progress(done, total, o.frame.index, o.ok ? "ok" : o.message);
+  };
+  JobSummary s;
+  {
+    py::gil_scoped_release release;
+    s = asFileError(
+        [&] { return runRecordingJob(job, out.string(), parseShard(shard), v, report, merge); });
+  }
+  return py::dict(py::arg("chosen") = s.chosen, py::arg("assigned") = s.assigned,
+                  py::arg("done") = s.done, py::arg("skipped") = s.skipped,
+                  py::arg("failed") = s.failed, py::arg("merged") = s.merged);
 }
 
 PyObservation synthesize(const std::string& scene, std::optional<fs::path> out, double blur_px,
@@ -344,6 +383,20 @@ method's settings (evkit.method_help(method)), e.g. budget='fast', contrast=0.2,
 times: µs inside the exposure; default five over the exposure, the middle and the ground truth's
 times. progress(done, total, loss) is called as an iterative method goes (tqdm fits); Ctrl-C
 stops a run at its next report with KeyboardInterrupt. The GIL is released while it works.)");
+  m.def("deblur_recording", &deblurRecording, py::arg("recording"), py::arg("out"),
+        py::arg("frames") = "all", py::arg("method") = "edi", py::arg("shard") = "0/1",
+        py::arg("latent") = 10, py::arg("calib") = py::none(), py::arg("ground_truth") = py::none(),
+        py::arg("filter_hot_pixels") = false, py::arg("seed") = 1, py::arg("merge") = true,
+        py::arg("video") = "latent.avi", py::arg("video_fps") = 30.0,
+        py::arg("progress") = py::none(),
+        R"(Deblurs every chosen frame of a recording into `out`, as `evkit deblur --recording`.
+
+frames: 'all', 'A:B' or 'A,B,C'. shard: 'I/N', this worker's share. Each frame's outputs go to
+out/frames/<index>/, its row to out/frames.csv; with merge, the last worker also writes the latent
+video (latent frames per exposure, video file and fps). Finished frames are never redone, so a
+second call resumes. progress(done, total, frame_index, status) after each frame. The other
+keyword arguments are the method's settings. Returns {chosen, assigned, done, skipped, failed,
+merged}; a frame's failure is in frames.csv and the count, not an exception.)");
   m.def("methods", &deblurrerNames, "The deblurring methods' names.");
   m.def("method_help", &deblurrerHelp, py::arg("method"),
         "Each setting of a method with its type, default and help, one per line.");

@@ -92,3 +92,27 @@ def test_ctrl_c_interrupts_a_long_run(tmp_path):
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def test_deblur_recording_resumes(tmp_path):
+    # A two-frame recording from two synthesised observations' frames and events.
+    first = evkit.synth("planes", blur_px=6, width=48, height=36, seed=1)
+    second = evkit.synth("planes", blur_px=6, width=48, height=36, seed=2)
+    shift = 200_000
+    ev = np.concatenate([first.events.events, second.events.events])
+    ev["t"][len(first.events):] += shift
+    frames = [evkit.Frame(first.blurry, *first.exposure),
+              evkit.Frame(second.blurry, first.exposure[0] + shift, first.exposure[1] + shift)]
+    path = tmp_path / "rec.h5"
+    evkit.write(path, ev, frames=frames, width=48, height=36)
+    seen = []
+    summary = evkit.deblur_recording(path, tmp_path / "job", latent=3,
+                                     progress=lambda *a: seen.append(a))
+    assert summary == {"chosen": 2, "assigned": 2, "done": 2, "skipped": 0, "failed": 0, "merged": True}
+    assert seen == [(1, 2, 0, "ok"), (2, 2, 1, "ok")]
+    rows = (tmp_path / "job" / "frames.csv").read_text().splitlines()
+    assert len(rows) == 3 and all(",ok," in r for r in rows[1:])
+    again = evkit.deblur_recording(path, tmp_path / "job", latent=3)
+    assert again["skipped"] == 2 and again["done"] == 0
+    with pytest.raises(evkit.FileError, match="holds another job"):
+        evkit.deblur_recording(path, tmp_path / "job", latent=4)
