@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 """Reference for the EDI figures: one latent frame by the same exact per-pixel sum, vectorised
-with numpy, on the files evkit_edi_bench wrote (1e6 events, 346x260), in the same session.
+with numpy, on the files evkit_edi_bench wrote (1e6 events, 346x260), in the same hour.
 
     /usr/bin/python3 benchmarks/reference_edi.py /tmp/evkit-bench
 """

@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 """Reference figures for the camera formats: vectorised numpy decoders (the fast way to read these
-files in Python) run on the files that evkit_formats_bench left in a folder, in the same session.
+files in Python) run on the files that evkit_formats_bench left in a folder, in the same hour.
 
     /usr/bin/python3 benchmarks/reference_formats.py /tmp/evkit-bench
 """

@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 """Reference figures for BENCHMARKS.md: reads the files that evkit_io_bench left in a folder with
-h5py / numpy (Debian's python3-h5py, python3-numpy), in the same session, so that evkit's
+h5py / numpy (Debian's python3-h5py, python3-numpy), in the same hour, so that evkit's
 throughput can be given as a ratio against it.
 
     /usr/bin/python3 benchmarks/reference_h5py.py /tmp/evkit-bench

@@ -1,7 +1,7 @@
 #!/usr/bin/python3
 """Reference for the simulator figures: the same model (crossings counted from the reference,
 interpolated timestamps, per-pixel thresholds, events sorted per interval) vectorised with numpy, on
-the same kind of video as evkit_simulator_bench, in the same session.
+the same kind of video as evkit_simulator_bench, in the same hour.
 
     /usr/bin/python3 benchmarks/reference_simulator.py
 """
