@@ -1,5 +1,5 @@
 // Where benchmarks leave their generated files: $EVKIT_BENCH_DIR, else <tmp>/evkit-bench (created),
-// so that the Python reference scripts can read the very same files in the same session.
+// so that the Python reference scripts can read the very same files in the same hour.
 #pragma once
 
 #include <cstdlib>

@@ -4,7 +4,7 @@
 //   EVKIT_BENCH_DIR=/tmp/evkit-bench ./build/benchmarks/evkit_io_bench
 //
 // The files stay in EVKIT_BENCH_DIR so that benchmarks/reference_h5py.py can read the very same
-// files with h5py/numpy in the same session (the ratio goes into BENCHMARKS.md).
+// files with h5py/numpy in the same hour (the ratio goes into BENCHMARKS.md).
 
 #include <benchmark/benchmark.h>
 
