@@ -67,9 +67,8 @@ int runRecordingDeblur(const po::variables_map& vm, const std::string& method,
   job.frames = vm["frames"].as<std::string>();
   job.method = method;
   job.seed = vm["seed"].as<uint64_t>();
-  if (const auto seed = settings.find("seed"); seed != settings.end()) {
+  if (settings.count("seed"))
     throw UsageError("--set seed: a recording's frames are seeded by --seed (frame i: seed + i)");
-  }
   job.settings = std::move(settings);
   job.latent_per_exposure = vm["latent"].defaulted() ? 10 : vm["latent"].as<int>();
   if (job.latent_per_exposure < 1) throw UsageError("--latent must be at least 1");

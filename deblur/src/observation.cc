@@ -151,12 +151,9 @@ Observation observationFromRecording(const std::string& path, size_t index, int6
                                       obs.blurry.exposure_end_us + margin_us + 1);
   obs.events = rec.events;
   obs.events.setSensor(SensorSize{obs.blurry.image.cols, obs.blurry.image.rows});
-  if (rec.info.calibration) {
-    obs.camera = *rec.info.calibration;
-  } else {
-    const int w = obs.blurry.image.cols, h = obs.blurry.image.rows;
-    obs.camera = Calibration{0.9 * w, 0.9 * w, (w - 1) / 2.0, (h - 1) / 2.0, {}};
-  }
+  obs.camera = rec.info.calibration
+                   ? *rec.info.calibration
+                   : Calibration::assumed(obs.blurry.image.cols, obs.blurry.image.rows);
   return obs;
 }
 

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <opencv2/videoio.hpp>
 #include <sstream>
 
@@ -119,9 +120,8 @@ std::string manifestPath(const std::string& dir, size_t index) {
   return dir + "/manifest/" + std::to_string(index) + ".csv";
 }
 
-// The status field of a manifest row (the one before the quoted message), or "" without a row.
-std::string rowStatus(const std::string& dir, size_t index) {
-  const std::string row = readText(manifestPath(dir, index));
+// The status field of a manifest row (the one before the quoted message), or "" without one.
+std::string statusOf(const std::string& row) {
   const size_t quote = row.find(",\"");
   if (quote == std::string::npos) return "";
   const size_t comma = row.rfind(',', quote - 1);
@@ -129,7 +129,8 @@ std::string rowStatus(const std::string& dir, size_t index) {
 }
 
 bool finished(const std::string& dir, size_t index) {
-  return fs::exists(manifestPath(dir, index)) && rowStatus(dir, index) == "ok" &&
+  return fs::exists(manifestPath(dir, index)) &&
+         statusOf(readText(manifestPath(dir, index))) == "ok" &&
          fs::is_directory(dir + "/frames/" + std::to_string(index));
 }
 
@@ -140,9 +141,34 @@ std::vector<int64_t> latentTimes(const RecordedFrame& f, int n) {
   return times;
 }
 
+// What every frame of a job shares, read once: the calibration file, where the ground truth's
+// frames are (by time), and whether the method takes a seed.
+struct JobInputs {
+  std::optional<Calibration> calib;
+  std::map<int64_t, std::string> ground_truth;  // t_us -> <t_us>.png
+  bool seeded = false;
+};
+
+JobInputs readJobInputs(const RecordingJob& job) {
+  JobInputs in;
+  if (!job.calib.empty()) in.calib = readCalibration(job.calib);
+  if (!job.ground_truth.empty()) {
+    std::error_code ec;
+    for (const auto& entry : fs::directory_iterator(job.ground_truth, ec)) {
+      const std::string stem = entry.path().stem().string();
+      if (entry.path().extension() == ".png" && !stem.empty() &&
+          stem.find_first_not_of("0123456789") == std::string::npos)
+        in.ground_truth[std::stoll(stem)] = entry.path().string();
+    }
+    if (ec) throwInFile(job.ground_truth, "cannot list the ground truth: " + ec.message());
+  }
+  in.seeded = ("\n" + deblurrerHelp(job.method)).find("\n  seed (") != std::string::npos;
+  return in;
+}
+
 // Frame f of the recording with the events of its exposure (a time-window read), the camera, the
 // ground truth inside the exposure, and the noise filter applied.
-Observation frameObservation(const RecordingJob& job, const RecordedFrame& f) {
+Observation frameObservation(const RecordingJob& job, const JobInputs& in, const RecordedFrame& f) {
   if (f.end_us <= f.start_us) {
     throwInFile(job.recording,
                 "frame " + std::to_string(f.index) + " has no exposure interval (start " +
@@ -169,42 +195,21 @@ Observation frameObservation(const RecordingJob& job, const RecordedFrame& f) {
     obs.events = std::move(rec.events);
   }
   obs.events.setSensor(sensor);
-  if (!job.calib.empty()) {
-    obs.camera = readCalibration(job.calib).withSize(sensor.width, sensor.height);
-  } else if (rec.info.calibration) {
-    obs.camera = rec.info.calibration->withSize(sensor.width, sensor.height);
-  } else {
-    const double w = sensor.width, h = sensor.height;
-    obs.camera = Calibration{0.9 * w, 0.9 * w,      (w - 1) / 2.0, (h - 1) / 2.0,
-                             {},      sensor.width, sensor.height};
-  }
-  if (!job.ground_truth.empty()) {
-    std::error_code ec;
-    for (const auto& entry : fs::directory_iterator(job.ground_truth, ec)) {
-      const std::string stem = entry.path().stem().string();
-      if (entry.path().extension() != ".png" || stem.empty() ||
-          stem.find_first_not_of("0123456789") != std::string::npos)
-        continue;
-      const int64_t t = std::stoll(stem);
-      if (t < f.start_us || t > f.end_us) continue;
-      Frame g = readImageFile(entry.path().string());
-      g.exposure_start_us = g.exposure_end_us = t;
-      obs.gt_frames.push_back(std::move(g));
-    }
-    if (ec) throwInFile(job.ground_truth, "cannot list the ground truth: " + ec.message());
-    std::sort(obs.gt_frames.begin(), obs.gt_frames.end(), [](const Frame& a, const Frame& b) {
-      return a.exposure_start_us < b.exposure_start_us;
-    });
+  obs.camera = (in.calib               ? *in.calib
+                : rec.info.calibration ? *rec.info.calibration
+                                       : Calibration::assumed(sensor.width, sensor.height))
+                   .withSize(sensor.width, sensor.height);
+  for (auto g = in.ground_truth.lower_bound(f.start_us);
+       g != in.ground_truth.end() && g->first <= f.end_us; ++g) {
+    Frame frame = readImageFile(g->second);
+    frame.exposure_start_us = frame.exposure_end_us = g->first;
+    obs.gt_frames.push_back(std::move(frame));
   }
   return obs;
 }
 
-bool hasSeedSetting(const std::string& method) {
-  const std::string help = "\n" + deblurrerHelp(method);
-  return help.find("\n  seed (") != std::string::npos;
-}
-
-FrameOutcome runFrame(const RecordingJob& job, const RecordedFrame& f, const std::string& dir) {
+FrameOutcome runFrame(const RecordingJob& job, const JobInputs& in, const RecordedFrame& f,
+                      const std::string& dir) {
   FrameOutcome outcome;
   outcome.frame = f;
   const auto start = std::chrono::steady_clock::now();
@@ -212,9 +217,9 @@ FrameOutcome runFrame(const RecordingJob& job, const RecordedFrame& f, const std
   int64_t events = 0;
   try {
     MethodSettings settings = job.settings;
-    if (hasSeedSetting(job.method)) settings["seed"] = std::to_string(job.seed + f.index);
+    if (in.seeded) settings["seed"] = std::to_string(job.seed + f.index);
     const Method method = makeMethod(job.method, settings);
-    const Observation obs = frameObservation(job, f);
+    const Observation obs = frameObservation(job, in, f);
     events = static_cast<int64_t>(obs.events.size());
     DeblurRequest request;
     request.times_us = latentTimes(f, job.latent_per_exposure);
@@ -334,6 +339,7 @@ JobSummary runRecordingJob(const RecordingJob& job, const std::string& dir, Shar
     writeFileAtomically(job_path, text);
   }
 
+  const JobInputs inputs = readJobInputs(job);
   JobSummary summary;
   summary.chosen = chosen.size();
   std::vector<RecordedFrame> mine;
@@ -350,7 +356,7 @@ JobSummary runRecordingJob(const RecordingJob& job, const std::string& dir, Shar
       outcome.ok = outcome.skipped = true;
       ++summary.skipped;
     } else {
-      outcome = runFrame(job, f, dir);
+      outcome = runFrame(job, inputs, f, dir);
       ++(outcome.ok ? summary.done : summary.failed);
     }
     if (progress) progress(++handled, mine.size(), outcome);
@@ -389,9 +395,10 @@ MergeSummary mergeRecordingJob(const std::string& dir, const VideoOptions& video
                std::to_string(f.end_us) + ",null,null,null,null,null,null,null,missing,\"\"\n";
         continue;
       }
-      csv += readText(row_path);
+      const std::string row = readText(row_path);
+      csv += row;
       ++summary.rows;
-      if (rowStatus(dir, f.index) != "ok") {
+      if (statusOf(row) != "ok") {
         ++summary.failed;
         continue;
       }

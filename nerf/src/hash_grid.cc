@@ -233,13 +233,15 @@ typename HashGrid<T>::Matrix HashGrid<T>::backwardLevelMajor(const T* d_features
   const uint32_t mask = static_cast<uint32_t>(entries_ - 1);
   // Each level is one thread's at a time (its table slice: no atomics) with its own position
   // sums, added in level order afterwards: the same sums whatever the number of threads.
-  std::vector<Matrix> partial(static_cast<size_t>(config_.levels));
+  std::vector<Matrix>& partial = level_positions_;
+  partial.resize(static_cast<size_t>(config_.levels));
 #pragma omp parallel
   {
 #pragma omp for schedule(static, 1)
     for (int l = 0; l < config_.levels; ++l) {
       Matrix& local = partial[static_cast<size_t>(l)];
-      local = Matrix::Zero(n, 3);  // one array per axis
+      local.resize(n, 3);  // one array per axis; keeps its allocation for the same n
+      local.setZero();
       const int res = resolution_[static_cast<size_t>(l)];
       const bool dense = dense_[static_cast<size_t>(l)];
       const size_t offset = static_cast<size_t>(l) * entries_;

@@ -1,8 +1,8 @@
 // evkit.Observation, synth, deblur and the method registry.
 #include <pybind11/stl.h>
 #include <pybind11/stl/filesystem.h>
-#include <unistd.h>
 
+#include <cstdlib>
 #include <filesystem>
 
 #include "arrays.h"
@@ -148,7 +148,6 @@ PyResult deblur(const PyObservation& o, const std::string& name, py::object time
     report = evaluateMethod(obs, method, request);
   }
   PyResult r;
-  std::vector<cv::Mat> images;
   py::list frames;
   std::vector<int64_t> stamps;
   for (const Frame& f : report.result.frames) {
@@ -239,26 +238,33 @@ PyObservation synthesize(const std::string& scene, std::optional<fs::path> out, 
       preset = e.scene;
     }
   }
-  const bool temporary = !out;
-  const std::string dir =
-      out ? out->string()
-          : (fs::temp_directory_path() / ("evkit-synth-" + std::to_string(getpid()) + "-" +
-                                          std::to_string(reinterpret_cast<uintptr_t>(&o))))
-                .string();
+  // Without `out`: a private folder (mkdtemp), removed whatever happens.
+  struct TemporaryFolder {
+    std::string path;
+    ~TemporaryFolder() {
+      std::error_code ec;
+      if (!path.empty()) fs::remove_all(path, ec);
+    }
+  } scratch;
+  std::string dir;
+  if (out) {
+    dir = out->string();
+  } else {
+    std::string pattern = (fs::temp_directory_path() / "evkit-synth-XXXXXX").string();
+    if (!mkdtemp(pattern.data())) throw FileError(pattern + ": cannot create a temporary folder");
+    scratch.path = pattern;
+    dir = pattern + "/observation";
+  }
   auto obs = std::make_shared<Observation>();
   {
     py::gil_scoped_release release;
     const synth::Scene s = synth::makePreset(preset, so);
-    asFileError([&] { synth::writeObservation(s, o, dir); });
-    try {
+    asFileError([&] {
+      synth::writeObservation(s, o, dir);
       *obs = loadObservation(dir);
-    } catch (...) {
-      if (temporary) fs::remove_all(dir);
-      throw;
-    }
-    if (temporary) fs::remove_all(dir);
+    });
   }
-  if (temporary) obs->source = "synth:" + scene;
+  if (!out) obs->source = "synth:" + scene;
   return {obs};
 }
 

@@ -117,7 +117,8 @@ void writeFile(const std::filesystem::path& file, py::handle events, py::object 
                const std::optional<std::string>& format,
                const std::optional<std::string>& compression, int level) {
   const std::string path = file.string();
-  const auto store = eventsFrom(events, sensorArg(width, height), "events");
+  const SensorSize given = sensorArg(width, height);
+  const auto store = eventsFrom(events, given, "events");
   std::vector<Frame> frame_list;
   if (!frames.is_none()) {
     size_t i = 0;
@@ -126,7 +127,7 @@ void writeFile(const std::filesystem::path& file, py::handle events, py::object 
   }
   SensorSize sensor = store->sensor();
   for (const Frame& f : frame_list) {
-    if (!sensorArg(width, height).known()) {
+    if (!given.known()) {
       sensor.width = std::max(sensor.width, f.image.cols);
       sensor.height = std::max(sensor.height, f.image.rows);
     } else if (f.image.cols != sensor.width || f.image.rows != sensor.height) {
@@ -139,6 +140,7 @@ void writeFile(const std::filesystem::path& file, py::handle events, py::object 
   if (compression) options.compression = parseCompression(*compression);
   options.level = level;
   py::gil_scoped_release release;
+  // writeRecording's steps over the shared store (a Recording would hold a copy of the events).
   asFileError([&] {
     const Format f = format ? parseFormat(*format) : outputFormat(path);
     auto writer = openWriter(path, f, sensor, options);

@@ -93,9 +93,7 @@ HeightField heightFieldFromFiles(const std::string& image, const std::string& de
 
 }  // namespace
 
-Calibration defaultCamera(int width, int height) {
-  return Calibration{0.9 * width, 0.9 * width, (width - 1) / 2.0, (height - 1) / 2.0, {}};
-}
+Calibration defaultCamera(int width, int height) { return Calibration::assumed(width, height); }
 
 std::vector<std::string> presetNames() {
   return {"planes", "box", "rgbd", "ground", "text", "plain"};

@@ -19,6 +19,12 @@ struct PinholeCamera {
     c.height = h;
     return c;
   }
+
+  // The camera assumed where none is given: fx = fy = 0.9 width, the principal point at the
+  // image's centre, no distortion (size left unknown, as a calibration file leaves it).
+  static PinholeCamera assumed(int w, int h) {
+    return PinholeCamera{0.9 * w, 0.9 * w, (w - 1) / 2.0, (h - 1) / 2.0, {}};
+  }
 };
 
 }  // namespace evkit

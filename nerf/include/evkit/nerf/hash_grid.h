@@ -62,6 +62,9 @@ class HashGrid {
   std::vector<T> table_, grad_;
   std::vector<uint8_t> touched_;
   Matrix positions_;  // forward's clamped positions (N x 3: one array per axis), for backward
+  // backward's position gradients per level (N x 3 each), kept between steps: fresh buffers of
+  // this size would cost more in page faults than the kernels take
+  std::vector<Matrix> level_positions_;
   std::vector<uint8_t>
       inside_;  // per sample: axes strictly inside (0, 1): the clamp passes the gradient
 };
