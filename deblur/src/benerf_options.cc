@@ -98,8 +98,12 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
                  {"split", TrajectoryKind::kCubicSplit},
                  {"linear", TrajectoryKind::kLinear}},
                 "the trajectory's spline")
-        .choice("init", &O::init, {{"events", O::Init::kEvents}, {"identity", O::Init::kIdentity}},
-                "the knots' start: the rotation found from the events, or identity (the paper)")
+        .choice("init", &O::init,
+                {{"events", O::Init::kEvents},
+                 {"frames", O::Init::kFrames},
+                 {"identity", O::Init::kIdentity}},
+                "the knots' start: the motion registered between EDI's latent frames, the rotation "
+                "found from the events, or identity (the paper)")
         .number("alpha", &O::alpha, unit_open, "event window, a fraction of the exposure")
         .number("beta", &O::beta, {},
                 "weight of the event term (< 0: by the event term's form: 0.1 direct, 2 per 1,024 "

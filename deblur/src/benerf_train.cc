@@ -62,10 +62,11 @@ struct Start {
   BenerfOptions options;
   int views = 0;
   double blur_px = 0;
+  ExposureMotion motion;  // init=frames
 };
 
 Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& result) {
-  Start s{given, given.virtual_views, 0};
+  Start s{given, given.virtual_views, 0, {}};
   BenerfOptions& o = s.options;
   o.contrast = resolveContrast(o.contrast, obs);
   const bool estimate =
@@ -80,6 +81,16 @@ Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& 
     }
   }
   if (s.views <= 0) s.views = virtualViewsFor(s.blur_px);
+  if (o.init == BenerfOptions::Init::kFrames) {
+    s.motion = motionFromLatentFrames(
+        obs, obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows), o.contrast, o.log);
+    result.parameters["representation_depth"] = s.motion.depth ? 1 : 0;
+    result.parameters["parallax_px"] = s.motion.parallax_px;
+    result.parameters["motion_residual_rotation_px"] = s.motion.residual_rotation_px;
+    result.parameters["motion_residual_plane_px"] = s.motion.residual_plane_px;
+    result.parameters["motion_residual_depth_px"] = s.motion.residual_depth_px;
+    result.parameters["motion_tracks"] = s.motion.tracks;
+  }
   return s;
 }
 
@@ -103,6 +114,26 @@ void initialiseFromEvents(const Observation& obs, BenerfProblem<float>& problem,
   for (size_t k = 0; k < trajectory.knots().size(); ++k)
     trajectory.knots()[k] = fitted.knots()[k] * trajectory.knots()[k];
   result.parameters["initial_rotation_deg"] = omega.norm() * 180 / std::numbers::pi;
+}
+
+// The knots fitted to the motion registered between EDI's latent frames (poses relative to
+// mid-exposure), each then moved by its random jitter; with too few tracks, the events' rotation.
+void initialiseFromFrames(const Observation& obs, BenerfProblem<float>& problem,
+                          const ExposureMotion& motion, double blur_px, DeblurResult& result) {
+  if (motion.poses.empty()) {
+    initialiseFromEvents(obs, problem, blur_px, result);
+    return;
+  }
+  Trajectory& trajectory = problem.trajectory();
+  const Trajectory fitted =
+      fitTrajectory(trajectory.kind(), static_cast<int>(trajectory.knots().size()),
+                    trajectory.beginUs(), trajectory.endUs(), motion.poses);
+  for (size_t k = 0; k < trajectory.knots().size(); ++k)
+    trajectory.knots()[k] = fitted.knots()[k] * trajectory.knots()[k];
+  const SE3 over = motion.poses.front().pose.inverse() * motion.poses.back().pose;
+  result.parameters["initial_rotation_deg"] =
+      logSO3(over.rotation()).norm() * 180 / std::numbers::pi;
+  result.parameters["initial_translation"] = over.translation().norm();
 }
 
 // The two optimisers (the field's; the knots' as right-perturbation steps), their one learning-rate
@@ -350,6 +381,8 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
   const BenerfOptions& o = s.options;
   BenerfProblem<float> problem(obs, o, s.views);
   if (o.init == BenerfOptions::Init::kEvents) initialiseFromEvents(obs, problem, s.blur_px, result);
+  if (o.init == BenerfOptions::Init::kFrames)
+    initialiseFromFrames(obs, problem, s.motion, s.blur_px, result);
   Optimisers optimisers(problem, o);
   std::mt19937_64 rng(o.seed);
   int iterations = o.iterations;

@@ -1,0 +1,354 @@
+// The camera's motion over the exposure from EDI's latent frames: each frame registered to the
+// mid-exposure one by dense optical flow, the flows explained by a rigid camera (a rotation per
+// time, optionally a translation per time seen through a per-tile inverse depth), and the choice
+// between the two by whether the parallax is observable in the data.
+
+#include <algorithm>
+#include <cmath>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/video/tracking.hpp>
+
+#include "evkit/deblur/benerf.h"
+#include "evkit/deblur/edi.h"
+#include "evkit/deblur/metrics.h"
+
+namespace evkit {
+
+namespace {
+
+// A log image as 8 bits for the flow, on a range shared by every frame (the mid frame's 0.5 and
+// 99.5 percentiles); a 3 x 3 median and a Gaussian of 1 px take out isolated event noise.
+class FlowImages {
+ public:
+  FlowImages(const cv::Mat& mid_log) {
+    std::vector<float> values(mid_log.begin<float>(), mid_log.end<float>());
+    std::sort(values.begin(), values.end());
+    lo_ = values[values.size() / 200];
+    hi_ = std::max(lo_ + 1e-3f, values[values.size() - 1 - values.size() / 200]);
+  }
+  cv::Mat convert(const cv::Mat& log_image) const {
+    cv::Mat u8;
+    log_image.convertTo(u8, CV_8U, 255.0 / (hi_ - lo_), -255.0 * lo_ / (hi_ - lo_));
+    cv::medianBlur(u8, u8, 3);
+    cv::GaussianBlur(u8, u8, cv::Size(0, 0), 1.0);
+    return u8;
+  }
+
+ private:
+  float lo_ = 0, hi_ = 1;
+};
+
+cv::Mat logGrey(const cv::Mat& image, const LogMapping& log) {
+  const cv::Mat grey = toGrey(image);
+  cv::Mat L(grey.size(), CV_32F);
+  for (int y = 0; y < grey.rows; ++y) {
+    for (int x = 0; x < grey.cols; ++x)
+      L.at<float>(y, x) = log.toLog(std::max(grey.at<float>(y, x), 0.0f));
+  }
+  return L;
+}
+
+// One tracked point: its bearing at mid-exposure, its tile and where it is seen at each time
+// (NaN where the flow there failed its forward-backward check).
+struct Track {
+  Vector3 bearing;
+  Eigen::Vector2d pixel;
+  int tile = 0;
+  std::vector<Eigen::Vector2d> seen;
+};
+
+// Where the camera at one time sees a mid-exposure point of inverse depth rho (0: at infinity).
+Eigen::Vector2d predict(const PinholeCamera& camera, const Vector3& bearing, double rho,
+                        const Vector3& theta, const Vector3& p) {
+  const Matrix3 Rt = expSO3(theta).toRotationMatrix().transpose();
+  const Vector3 X = Rt * (bearing - rho * p);  // R^T (b / rho - p), scaled by rho
+  return nerf::projectPoint(camera, X);
+}
+
+constexpr double kHuberPx = 1.0;
+
+double huberWeight(double r) { return r <= kHuberPx ? 1.0 : kHuberPx / r; }
+
+// Gauss-Newton on one time's motion (rotation, and translation when `translate`), each track's
+// inverse depth fixed, with Huber weights; the translation gets a small ridge so that where no
+// parallax tells them apart, rotation explains the motion.
+void fitTime(const PinholeCamera& camera, const std::vector<Track>& tracks,
+             const std::vector<double>& rho, int time, bool translate, double ridge, Vector3& theta,
+             Vector3& p) {
+  const int n = translate ? 6 : 3;
+  for (int iteration = 0; iteration < 8; ++iteration) {
+    Eigen::MatrixXd H = Eigen::MatrixXd::Zero(n, n);
+    Eigen::VectorXd g = Eigen::VectorXd::Zero(n);
+    for (size_t i = 0; i < tracks.size(); ++i) {
+      const Track& tr = tracks[i];
+      const Eigen::Vector2d& q = tr.seen[static_cast<size_t>(time)];
+      if (!std::isfinite(q.x())) continue;
+      const double r = translate ? rho[i] : 0.0;
+      const Eigen::Vector2d r0 = predict(camera, tr.bearing, r, theta, p) - q;
+      Eigen::Matrix<double, 2, Eigen::Dynamic> J(2, n);
+      for (int k = 0; k < n; ++k) {
+        Vector3 dt = theta, dp = p;
+        (k < 3 ? dt[k] : dp[k - 3]) += 1e-6;
+        J.col(k) = (predict(camera, tr.bearing, r, dt, dp) - r0 - q) / 1e-6;
+      }
+      const double w = huberWeight(r0.norm());
+      H += w * J.transpose() * J;
+      g += w * J.transpose() * r0;
+    }
+    if (translate) {
+      H.bottomRightCorner(3, 3) += ridge * Matrix3::Identity();
+      g.tail(3) += ridge * p;
+    }
+    const Eigen::VectorXd step = H.ldlt().solve(-g);
+    if (!step.allFinite()) return;
+    theta += step.head(3);
+    if (translate) p += step.tail(3);
+    if (step.norm() < 1e-10) break;
+  }
+}
+
+// A scene's inverse depth as a linear model over the tracks, rho_i = phi_i . w: a plane (1 / Z of
+// a plane is affine in the normalised image coordinates: phi = (1, x / z, y / z)) or one value per
+// tile (phi = the tile's indicator).
+struct DepthModel {
+  bool per_tile = false;
+  int tiles = 0;
+  int size() const { return per_tile ? tiles : 3; }
+  // The basis functions that are non-zero for a track, as (index, value).
+  void basis(const Track& tr, std::vector<std::pair<int, double>>& out) const {
+    out.clear();
+    if (per_tile) {
+      out.emplace_back(tr.tile, 1.0);
+    } else {
+      out.emplace_back(0, 1.0);
+      out.emplace_back(1, tr.bearing.x() / tr.bearing.z());
+      out.emplace_back(2, tr.bearing.y() / tr.bearing.z());
+    }
+  }
+};
+
+// The depth model's weights given every time's motion, by Gauss-Newton on the linear model;
+// per-tile unknowns without enough tracks keep their value.
+void fitDepth(const PinholeCamera& camera, const std::vector<Track>& tracks,
+              const DepthModel& model, const std::vector<Vector3>& theta,
+              const std::vector<Vector3>& p, const std::vector<int>& support, Eigen::VectorXd& w) {
+  const int n = model.size();
+  std::vector<std::pair<int, double>> phi;
+  for (int iteration = 0; iteration < 4; ++iteration) {
+    Eigen::MatrixXd H = Eigen::MatrixXd::Zero(n, n);
+    Eigen::VectorXd g = Eigen::VectorXd::Zero(n);
+    for (const Track& tr : tracks) {
+      model.basis(tr, phi);
+      double rho = 0;
+      for (const auto& [j, v] : phi) rho += v * w[j];
+      for (size_t k = 0; k < theta.size(); ++k) {
+        const Eigen::Vector2d& q = tr.seen[k];
+        if (!std::isfinite(q.x())) continue;
+        const Eigen::Vector2d r0 = predict(camera, tr.bearing, rho, theta[k], p[k]) - q;
+        const Eigen::Vector2d J =
+            (predict(camera, tr.bearing, rho + 1e-5, theta[k], p[k]) - r0 - q) / 1e-5;
+        const double wt = huberWeight(r0.norm());
+        for (const auto& [a, va] : phi) {
+          g[a] += wt * va * J.dot(r0);
+          for (const auto& [b, vb] : phi) H(a, b) += wt * va * vb * J.squaredNorm();
+        }
+      }
+    }
+    for (int j = 0; j < n; ++j) {
+      if (support[static_cast<size_t>(j)] < 6)
+        H.row(j).setZero(), H.col(j).setZero(), H(j, j) = 1, g[j] = 0;
+    }
+    const Eigen::VectorXd step = H.ldlt().solve(-g);
+    if (!step.allFinite()) return;
+    w += step;
+  }
+}
+
+// Root mean square of the residuals (px) over every tracked point and time, each capped at 3 px.
+double rmsResidual(const PinholeCamera& camera, const std::vector<Track>& tracks,
+                   const std::vector<double>& rho, const std::vector<Vector3>& theta,
+                   const std::vector<Vector3>& p) {
+  double sum = 0;
+  size_t count = 0;
+  for (size_t i = 0; i < tracks.size(); ++i) {
+    for (size_t k = 0; k < theta.size(); ++k) {
+      const Eigen::Vector2d& q = tracks[i].seen[k];
+      if (!std::isfinite(q.x())) continue;
+      const double r = (predict(camera, tracks[i].bearing, rho[i], theta[k], p[k]) - q).norm();
+      sum += std::min(r, 3 * kHuberPx) * std::min(r, 3 * kHuberPx);
+      ++count;
+    }
+  }
+  return count ? std::sqrt(sum / static_cast<double>(count)) : 0.0;
+}
+
+// One motion model fitted: a rotation and a translation per time and each track's inverse depth.
+struct RigidFit {
+  std::vector<Vector3> theta, p;
+  std::vector<double> rho;  // per track
+  double residual_px = 0;
+};
+
+// Rotation alone (no depth model) or rotation and translation through a depth model, alternating
+// the motions and the depths; the scale (not observable) fixed by putting the nearest tracks (95th
+// percentile of the inverse depth) at depth 1.5, the NDC near plane being at 1.
+RigidFit fitRigid(const PinholeCamera& camera, const std::vector<Track>& tracks, int times, int mid,
+                  const DepthModel* model, const RigidFit* start) {
+  RigidFit f;
+  f.theta =
+      start ? start->theta : std::vector<Vector3>(static_cast<size_t>(times), Vector3::Zero());
+  f.p.assign(static_cast<size_t>(times), Vector3::Zero());
+  f.rho.assign(tracks.size(), model ? 1 / 1.5 : 0.0);
+  if (!model) {
+    for (int k = 0; k < times; ++k) {
+      if (k != mid)
+        fitTime(camera, tracks, f.rho, k, false, 0, f.theta[static_cast<size_t>(k)],
+                f.p[static_cast<size_t>(k)]);
+    }
+    f.residual_px = rmsResidual(camera, tracks, f.rho, f.theta, f.p);
+    return f;
+  }
+  std::vector<int> support(static_cast<size_t>(model->size()), 0);
+  std::vector<std::pair<int, double>> phi;
+  for (const Track& tr : tracks) {
+    model->basis(tr, phi);
+    for (const auto& [j, v] : phi) ++support[static_cast<size_t>(j)];
+  }
+  Eigen::VectorXd w = Eigen::VectorXd::Zero(model->size());
+  if (model->per_tile)
+    w.setConstant(1 / 1.5);
+  else
+    w[0] = 1 / 1.5;
+  const double ridge = 1e-4 * static_cast<double>(tracks.size()) * camera.fx * camera.fx;
+  for (int round = 0; round < 6; ++round) {
+    for (int k = 0; k < times; ++k) {
+      if (k != mid)
+        fitTime(camera, tracks, f.rho, k, true, ridge, f.theta[static_cast<size_t>(k)],
+                f.p[static_cast<size_t>(k)]);
+    }
+    fitDepth(camera, tracks, *model, f.theta, f.p, support, w);
+    for (size_t i = 0; i < tracks.size(); ++i) {
+      model->basis(tracks[i], phi);
+      f.rho[i] = 0;
+      for (const auto& [j, v] : phi) f.rho[i] += v * w[j];
+    }
+    std::vector<double> sorted = f.rho;
+    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() * 95 / 100, sorted.end());
+    const double nearest = sorted[sorted.size() * 95 / 100];
+    if (!(nearest > 0)) break;
+    const double scale = (1 / 1.5) / nearest;
+    w *= scale;
+    for (double& r : f.rho) r = std::clamp(r * scale, 0.0, 1 / 1.05);
+    for (Vector3& v : f.p) v /= scale;
+  }
+  f.residual_px = rmsResidual(camera, tracks, f.rho, f.theta, f.p);
+  return f;
+}
+
+}  // namespace
+
+ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamera& camera,
+                                      const std::optional<Contrast>& contrast,
+                                      const LogMapping& log) {
+  ExposureMotion m;
+  constexpr int kIntervals = 8;
+  const int mid = kIntervals / 2;
+  const int64_t t0 = obs.blurry.exposure_start_us, t1 = obs.blurry.exposure_end_us;
+  EdiOptions edi_options;
+  edi_options.use_observation_contrast = false;
+  edi_options.contrast = contrast;
+  DeblurRequest request;
+  for (int k = 0; k <= kIntervals; ++k) request.times_us.push_back(t0 + (t1 - t0) * k / kIntervals);
+  const DeblurResult latent = EdiDeblurrer{edi_options}.run(obs, request);
+
+  const cv::Mat mid_log = logGrey(latent.frames[mid].image, log);
+  const FlowImages to8{mid_log};
+  const cv::Mat mid8 = to8.convert(mid_log);
+  cv::Mat texture;
+  cv::cornerMinEigenVal(mid8, texture, 5);
+  std::vector<float> tex(texture.begin<float>(), texture.end<float>());
+  std::nth_element(tex.begin(), tex.begin() + tex.size() * 9 / 10, tex.end());
+  const float min_texture = 0.05f * tex[tex.size() * 9 / 10];
+
+  // Tracks on a 4 px grid wherever the mid frame has texture.
+  const int W = mid8.cols, H = mid8.rows, step = 4, margin = 4;
+  // Tiles of about 24 px: a few dozen tracks each.
+  const int kTilesX = std::max(1, (W + 12) / 24), kTilesY = std::max(1, (H + 12) / 24);
+  std::vector<Track> tracks;
+  for (int y = margin; y < H - margin; y += step) {
+    for (int x = margin; x < W - margin; x += step) {
+      if (texture.at<float>(y, x) < min_texture) continue;
+      Track tr;
+      tr.pixel = {x, y};
+      tr.bearing = nerf::pixelDirection(camera, x, y);
+      tr.tile =
+          std::min(kTilesY - 1, y * kTilesY / H) * kTilesX + std::min(kTilesX - 1, x * kTilesX / W);
+      tr.seen.assign(kIntervals + 1, Eigen::Vector2d::Constant(std::nan("")));
+      tracks.push_back(std::move(tr));
+    }
+  }
+  auto dis = cv::DISOpticalFlow::create(cv::DISOpticalFlow::PRESET_MEDIUM);
+  for (int k = 0; k <= kIntervals; ++k) {
+    if (k == mid) {
+      for (Track& tr : tracks) tr.seen[k] = tr.pixel;
+      continue;
+    }
+    const cv::Mat other = to8.convert(logGrey(latent.frames[k].image, log));
+    cv::Mat forward, backward;
+    dis->calc(mid8, other, forward);
+    dis->calc(other, mid8, backward);
+    for (Track& tr : tracks) {
+      const cv::Point2f f =
+          forward.at<cv::Point2f>(static_cast<int>(tr.pixel.y()), static_cast<int>(tr.pixel.x()));
+      const double qx = tr.pixel.x() + f.x, qy = tr.pixel.y() + f.y;
+      if (!(qx >= 0 && qy >= 0 && qx < W - 1 && qy < H - 1)) continue;
+      const cv::Point2f b = backward.at<cv::Point2f>(static_cast<int>(std::lround(qy)),
+                                                     static_cast<int>(std::lround(qx)));
+      if (std::hypot(f.x + b.x, f.y + b.y) > 0.5 + 0.05 * std::hypot(f.x, f.y)) continue;
+      tr.seen[k] = {qx, qy};
+    }
+  }
+  m.tracks = static_cast<int>(tracks.size());
+  if (tracks.size() < 50) return m;
+
+  // Three models of rising richness: a rotation alone; a rotation and a translation seen through
+  // one plane (a homography per time); the same through an inverse depth per tile.
+  const int times = kIntervals + 1;
+  const RigidFit rotation = fitRigid(camera, tracks, times, mid, nullptr, nullptr);
+  const DepthModel plane_model{false, 0}, tile_model{true, kTilesX * kTilesY};
+  const RigidFit plane = fitRigid(camera, tracks, times, mid, &plane_model, &rotation);
+  const RigidFit tiles = fitRigid(camera, tracks, times, mid, &tile_model, &rotation);
+  m.residual_rotation_px = rotation.residual_px;
+  m.residual_plane_px = plane.residual_px;
+  m.residual_depth_px = tiles.residual_px;
+  // Parallax: how far the tiles' depths move the image off the motion of the plane that fits them
+  // best, over the exposure (the 95th percentile over the tracks).
+  Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
+  Vector3 b = Vector3::Zero();
+  for (size_t i = 0; i < tracks.size(); ++i) {
+    const Vector3 phi(1, tracks[i].bearing.x() / tracks[i].bearing.z(),
+                      tracks[i].bearing.y() / tracks[i].bearing.z());
+    A += phi * phi.transpose();
+    b += phi * tiles.rho[i];
+  }
+  const Vector3 plane_w = A.ldlt().solve(b);
+  const double travel = camera.fx * (tiles.p.back() - tiles.p.front()).head<2>().norm();
+  std::vector<double> off(tracks.size());
+  for (size_t i = 0; i < tracks.size(); ++i) {
+    const Vector3 phi(1, tracks[i].bearing.x() / tracks[i].bearing.z(),
+                      tracks[i].bearing.y() / tracks[i].bearing.z());
+    off[i] = std::abs(tiles.rho[i] - phi.dot(plane_w)) * travel;
+  }
+  std::nth_element(off.begin(), off.begin() + off.size() * 95 / 100, off.end());
+  m.parallax_px = off[off.size() * 95 / 100];
+  m.depth = m.parallax_px > 1.0 && tiles.residual_px < 0.85 * plane.residual_px;
+  const RigidFit& chosen = m.depth ? tiles : plane;
+  for (int k = 0; k < times; ++k) {
+    const auto i = static_cast<size_t>(k);
+    m.poses.push_back({request.times_us[i], SE3(expSO3(chosen.theta[i]), chosen.p[i])});
+  }
+  for (size_t i = 0; i < tracks.size(); ++i) m.points.push_back({tracks[i].pixel, chosen.rho[i]});
+  return m;
+}
+
+}  // namespace evkit
