@@ -343,6 +343,9 @@ ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamer
   m.parallax_px = off[off.size() * 95 / 100];
   m.depth = m.parallax_px > 1.0 && tiles.residual_px < 0.85 * plane.residual_px;
   const RigidFit& chosen = m.depth ? tiles : plane;
+  // A rigid camera that does not explain the registration to within a pixel (motion beyond the
+  // models, a registration that failed): no poses, and the caller starts elsewhere.
+  if (chosen.residual_px > 1.0) return m;
   for (int k = 0; k < times; ++k) {
     const auto i = static_cast<size_t>(k);
     m.poses.push_back({request.times_us[i], SE3(expSO3(chosen.theta[i]), chosen.p[i])});

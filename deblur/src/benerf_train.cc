@@ -117,9 +117,11 @@ void initialiseFromEvents(const Observation& obs, BenerfProblem<float>& problem,
 }
 
 // The knots fitted to the motion registered between EDI's latent frames (poses relative to
-// mid-exposure), each then moved by its random jitter; with too few tracks, the events' rotation.
+// mid-exposure), each then moved by its random jitter; without poses (too few tracks, or a rigid
+// camera that does not explain them), the events' rotation.
 void initialiseFromFrames(const Observation& obs, BenerfProblem<float>& problem,
                           const ExposureMotion& motion, double blur_px, DeblurResult& result) {
+  result.parameters["motion_from_frames"] = motion.poses.empty() ? 0 : 1;
   if (motion.poses.empty()) {
     initialiseFromEvents(obs, problem, blur_px, result);
     return;

@@ -198,7 +198,9 @@ Vector3 rotationFromEvents(const Observation& obs, const nerf::PinholeCamera& ca
 // depth) are put at depth 1.5, the NDC near plane being at 1. The representation chosen is the
 // plane unless the parallax is observed in the data: the tiles' depths move the image off the best
 // plane's motion by more than 1 px over the exposure (95th percentile of the tracks) and take away
-// at least 15% of the plane's residual.
+// at least 15% of the plane's residual. Where the chosen model's RMS residual is above 1 px (the
+// rigid camera does not explain the registration), or fewer than 50 points are tracked, there are
+// no poses.
 struct ExposureMotion {
   std::vector<StampedPose> poses;  // T_mid_t: the camera at each time in the mid-exposure frame
   bool depth = false;              // the depth model chosen (else the plane)
