@@ -6,6 +6,7 @@
 #include <numbers>
 #include <opencv2/imgproc.hpp>
 
+#include "benerf_common.h"
 #include "evkit/deblur/benerf.h"
 #include "evkit/deblur/edi.h"
 #include "evkit/deblur/metrics.h"
@@ -30,12 +31,7 @@ BlurMeasurement measureBlur(const Observation& obs, const std::optional<Contrast
   const double margin = 0.01 * (edi_options.search_max - edi_options.search_min);
   m.inside = m.searched && m.c_on > edi_options.search_min + margin &&
              m.c_on < edi_options.search_max - margin;
-  const cv::Mat grey = toGrey(r.frames.front().image);  // frames are float32
-  cv::Mat L(grey.size(), CV_32F);
-  for (int y = 0; y < grey.rows; ++y) {
-    for (int x = 0; x < grey.cols; ++x)
-      L.at<float>(y, x) = log.toLog(std::max(grey.at<float>(y, x), 0.0f));
-  }
+  const cv::Mat L = benerf_detail::logGrey(r.frames.front().image, log);  // frames are float32
   double gradient = 0;
   for (int y = 1; y + 1 < L.rows; ++y) {
     for (int x = 1; x + 1 < L.cols; ++x) {

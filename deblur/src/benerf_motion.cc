@@ -8,6 +8,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 
+#include "benerf_common.h"
 #include "evkit/deblur/benerf.h"
 #include "evkit/deblur/edi.h"
 #include "evkit/deblur/metrics.h"
@@ -37,16 +38,6 @@ class FlowImages {
  private:
   float lo_ = 0, hi_ = 1;
 };
-
-cv::Mat logGrey(const cv::Mat& image, const LogMapping& log) {
-  const cv::Mat grey = toGrey(image);
-  cv::Mat L(grey.size(), CV_32F);
-  for (int y = 0; y < grey.rows; ++y) {
-    for (int x = 0; x < grey.cols; ++x)
-      L.at<float>(y, x) = log.toLog(std::max(grey.at<float>(y, x), 0.0f));
-  }
-  return L;
-}
 
 // One tracked point: its bearing at mid-exposure, its tile and where it is seen at each time
 // (NaN where the flow there failed its forward-backward check).
@@ -261,7 +252,7 @@ ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamer
   for (int k = 0; k <= kIntervals; ++k) request.times_us.push_back(t0 + (t1 - t0) * k / kIntervals);
   const DeblurResult latent = EdiDeblurrer{edi_options}.run(obs, request);
 
-  const cv::Mat mid_log = logGrey(latent.frames[mid].image, log);
+  const cv::Mat mid_log = benerf_detail::logGrey(latent.frames[mid].image, log);
   const FlowImages to8{mid_log};
   const cv::Mat mid8 = to8.convert(mid_log);
   cv::Mat texture;
@@ -293,7 +284,7 @@ ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamer
       for (Track& tr : tracks) tr.seen[k] = tr.pixel;
       continue;
     }
-    const cv::Mat other = to8.convert(logGrey(latent.frames[k].image, log));
+    const cv::Mat other = to8.convert(benerf_detail::logGrey(latent.frames[k].image, log));
     cv::Mat forward, backward;
     dis->calc(mid8, other, forward);
     dis->calc(other, mid8, backward);
@@ -350,7 +341,6 @@ ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamer
     const auto i = static_cast<size_t>(k);
     m.poses.push_back({request.times_us[i], SE3(expSO3(chosen.theta[i]), chosen.p[i])});
   }
-  for (size_t i = 0; i < tracks.size(); ++i) m.points.push_back({tracks[i].pixel, chosen.rho[i]});
   return m;
 }
 

@@ -208,11 +208,6 @@ struct ExposureMotion {
   double residual_rotation_px = 0, residual_plane_px = 0,
          residual_depth_px = 0;  // RMS of each model's residuals
   int tracks = 0;                // textured points tracked
-  struct Point {
-    Eigen::Vector2d pixel;  // at mid-exposure
-    double inverse_depth;   // in the poses' scale
-  };
-  std::vector<Point> points;  // the tracked points with the chosen model's inverse depth
 };
 ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamera& camera,
                                       const std::optional<Contrast>& contrast,
