@@ -177,6 +177,7 @@ double rmsResidual(const PinholeCamera& camera, const std::vector<Track>& tracks
 struct RigidFit {
   std::vector<Vector3> theta, p;
   std::vector<double> rho;  // per track
+  Eigen::VectorXd w;        // the depth model's weights (empty for a rotation alone)
   double residual_px = 0;
 };
 
@@ -232,8 +233,76 @@ RigidFit fitRigid(const PinholeCamera& camera, const std::vector<Track>& tracks,
     for (double& r : f.rho) r = std::clamp(r * scale, 0.0, 1 / 1.05);
     for (Vector3& v : f.p) v /= scale;
   }
+  f.w = w;
+  for (int j = 0; j < model->size(); ++j) {
+    if (support[static_cast<size_t>(j)] < 6) f.w[j] = std::nan("");  // not observed
+  }
   f.residual_px = rmsResidual(camera, tracks, f.rho, f.theta, f.p);
   return f;
+}
+
+// The chosen model's inverse depth at every pixel: the plane's, or the tiles' interpolated
+// bilinearly between their centres, a tile without tracks taking its observed neighbours' mean.
+cv::Mat inverseDepthMap(const PinholeCamera& camera, const DepthModel& model, const RigidFit& fit,
+                        int tiles_x, int tiles_y) {
+  const int W = camera.width, H = camera.height;
+  cv::Mat rho(H, W, CV_32F);
+  if (!model.per_tile) {
+    for (int y = 0; y < H; ++y) {
+      for (int x = 0; x < W; ++x) {
+        const Vector3 b = nerf::pixelDirection(camera, x, y);
+        rho.at<float>(y, x) =
+            static_cast<float>(fit.w[0] + fit.w[1] * b.x() / b.z() + fit.w[2] * b.y() / b.z());
+      }
+    }
+  } else {
+    cv::Mat tile(tiles_y, tiles_x, CV_32F);
+    for (int j = 0; j < tiles_x * tiles_y; ++j) tile.at<float>(j / tiles_x, j % tiles_x) = fit.w[j];
+    for (int pass = 0; pass < tiles_x + tiles_y; ++pass) {  // grow the observed tiles into the rest
+      cv::Mat next = tile.clone();
+      bool missing = false;
+      for (int ty = 0; ty < tiles_y; ++ty) {
+        for (int tx = 0; tx < tiles_x; ++tx) {
+          if (std::isfinite(tile.at<float>(ty, tx))) continue;
+          double sum = 0;
+          int count = 0;
+          for (int dy = -1; dy <= 1; ++dy) {
+            for (int dx = -1; dx <= 1; ++dx) {
+              const int yy = ty + dy, xx = tx + dx;
+              if (yy < 0 || xx < 0 || yy >= tiles_y || xx >= tiles_x) continue;
+              if (std::isfinite(tile.at<float>(yy, xx))) sum += tile.at<float>(yy, xx), ++count;
+            }
+          }
+          if (count > 0)
+            next.at<float>(ty, tx) = static_cast<float>(sum / count);
+          else
+            missing = true;
+        }
+      }
+      tile = next;
+      if (!missing) break;
+    }
+    cv::patchNaNs(tile, 0.0);
+    // Tile j covers pixels [j W / tiles, (j + 1) W / tiles): its centre is at (j + 0.5) W / tiles.
+    for (int y = 0; y < H; ++y) {
+      const double fy = std::clamp((y + 0.5) * tiles_y / H - 0.5, 0.0, tiles_y - 1.0);
+      const int y0 = std::min(static_cast<int>(fy), std::max(0, tiles_y - 2));
+      const int y1 = std::min(y0 + 1, tiles_y - 1);
+      const double ay = fy - y0;
+      for (int x = 0; x < W; ++x) {
+        const double fx = std::clamp((x + 0.5) * tiles_x / W - 0.5, 0.0, tiles_x - 1.0);
+        const int x0 = std::min(static_cast<int>(fx), std::max(0, tiles_x - 2));
+        const int x1 = std::min(x0 + 1, tiles_x - 1);
+        const double ax = fx - x0;
+        rho.at<float>(y, x) = static_cast<float>(
+            (1 - ay) * ((1 - ax) * tile.at<float>(y0, x0) + ax * tile.at<float>(y0, x1)) +
+            ay * ((1 - ax) * tile.at<float>(y1, x0) + ax * tile.at<float>(y1, x1)));
+      }
+    }
+  }
+  cv::max(rho, 0.0, rho);
+  cv::min(rho, 1 / 1.05, rho);
+  return rho;
 }
 
 }  // namespace
@@ -341,6 +410,8 @@ ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamer
     const auto i = static_cast<size_t>(k);
     m.poses.push_back({request.times_us[i], SE3(expSO3(chosen.theta[i]), chosen.p[i])});
   }
+  m.inverse_depth =
+      inverseDepthMap(camera, m.depth ? tile_model : plane_model, chosen, kTilesX, kTilesY);
   return m;
 }
 

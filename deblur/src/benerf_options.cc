@@ -87,7 +87,8 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
         .custom({"preset", "synthetic|real",
                  "the event term compared directly (synthetic) or normalised (real)", handled,
                  [](const O&) {}, [](const O&) { return std::string("none"); }})
-        .choice("field", &O::field, {{"hash", Field::kHash}, {"mlp", Field::kMlp}},
+        .choice("field", &O::field,
+                {{"hash", Field::kHash}, {"mlp", Field::kMlp}, {"pixels", Field::kPixels}},
                 "the fast hash-grid field or the paper's 8 x 256 MLP")
         .integer("iterations", &O::iterations, {1}, "training steps")
         .integer("views", &O::virtual_views, {0},
@@ -164,12 +165,15 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
                  [](const O& o) { return std::to_string(o.hash.grid.log2_table); }})
         .integer("resolution", &O::finest_resolution, {0},
                  "the finest grid level's cells (0: the image's larger side)")
+        .integer("cells", &O::cells, {1, 4}, "the pixel grid's cells per pixel along each axis")
         .number("depth_scale", &O::depth_scale, {0, 1, true}, "the field sees NDC depth times this")
         .number("coarse_to_fine", &O::coarse_to_fine, unit,
                 "fraction of the steps over which the field's bands open")
         .number("field_lr", &O::field_lr, positive,
                 "the field's learning rate (the MLP's default: 5e-4)")
         .number("knot_lr", &O::knot_lr, positive, "the knots' learning rate")
+        .number("knot_init", &O::knot_init, {0, 1, true},
+                "the knots' random start, exp(u) with u uniform in [-knot_init, knot_init]^6")
         .number("lr_final", &O::lr_final, positive, "the fraction both learning rates decay to")
         .integer("seed", &O::seed, {0}, "random seed")
         .integer("threads", &O::threads, {0}, "OpenMP threads (0: OpenMP's default)")

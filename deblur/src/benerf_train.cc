@@ -13,6 +13,7 @@
 #include "evkit/deblur/benerf.h"
 #include "evkit/deblur/edi.h"
 #include "evkit/deblur/metrics.h"
+#include "evkit/deblur/pixel_grid.h"
 #include "evkit/nerf/adam.h"
 #include "evkit/spline/fit.h"
 
@@ -81,7 +82,7 @@ Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& 
     }
   }
   if (s.views <= 0) s.views = virtualViewsFor(s.blur_px);
-  if (o.init == BenerfOptions::Init::kFrames) {
+  if (o.init == BenerfOptions::Init::kFrames || o.field == BenerfOptions::FieldKind::kPixels) {
     s.motion = motionFromLatentFrames(
         obs, obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows), o.contrast, o.log);
     result.parameters["representation_depth"] = s.motion.depth ? 1 : 0;
@@ -373,14 +374,111 @@ void summarise(BenerfProblem<float>& problem, const BenerfOptions& o, int iterat
   if (last_blur > 0) result.parameters["blur_fit_psnr"] = -10 * std::log10(last_blur);
 }
 
+// The pixel-grid scene (benerf_pixels.cc): the registered motion, or the events' rotation where the
+// registration gave none, and the image found from EDI's mid-exposure frame.
+void runPixelGrid(const Observation& obs, const DeblurRequest& request, const Start& s,
+                  Clock::time_point start, DeblurResult& result) {
+  const BenerfOptions& o = s.options;
+  const PinholeCamera camera = obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows);
+  const int64_t t0 = obs.blurry.exposure_start_us, t1 = obs.blurry.exposure_end_us;
+  std::vector<StampedPose> poses = s.motion.poses;
+  cv::Mat inverse_depth = s.motion.inverse_depth;
+  result.parameters["motion_from_frames"] = poses.empty() ? 0 : 1;
+  if (poses.empty()) {
+    const Vector3 omega = rotationFromEvents(obs, camera, s.blur_px);
+    for (int k = 0; k <= 20; ++k) {
+      poses.push_back(
+          {t0 + (t1 - t0) * k / 20, SE3(expSO3((k / 20.0 - 0.5) * omega), Vector3::Zero())});
+    }
+    inverse_depth.release();
+  }
+  const Trajectory motion = fitTrajectory(
+      o.trajectory, std::max(o.knots, Trajectory::minimumKnots(o.trajectory)), t0, t1, poses);
+  Contrast contrast;
+  if (o.contrast) {
+    contrast = *o.contrast;
+  } else {
+    const BlurMeasurement m = measureBlur(obs, std::nullopt, o.log);
+    contrast = {m.c_on, m.c_off};
+    result.parameters["contrast_estimated"] = m.c_on;
+  }
+  PixelGridOptions po;
+  if (o.beta >= 0) po.beta = o.beta;
+  po.dim_frame = o.dim_frame;
+  po.log = o.log;
+  po.subdivision = o.cells;
+  PixelGridProblem problem(obs, camera, motion, inverse_depth, contrast, po);
+  EdiOptions edi_options;
+  edi_options.use_observation_contrast = false;
+  edi_options.contrast = contrast;
+  DeblurRequest mid_request;
+  mid_request.times_us = {obs.blurry.midExposure()};
+  std::vector<double> x =
+      problem.start(EdiDeblurrer{edi_options}.run(obs, mid_request).frames.front().image);
+  result.timings_s["setup"] = secondsSince(start);
+  const auto train_start = Clock::now();
+  PixelGridProblem::Terms terms;
+  // L-BFGS steps: a fifth of the budget's field steps (each takes about five times as long); a
+  // budget in seconds stops at its deadline.
+  const Clock::time_point deadline =
+      o.budget_seconds > 0 ? start + std::chrono::duration_cast<Clock::duration>(
+                                         std::chrono::duration<double>(0.95 * o.budget_seconds))
+                           : Clock::time_point::max();
+  const int steps = std::max(2, o.iterations / 5);
+  if (po.motion_steps > 0) problem.refineMotion(x, po.motion_steps);
+  int iterations = problem.solve(x, steps, &terms, deadline);
+  result.timings_s["train"] = secondsSince(train_start);
+  const auto render_start = Clock::now();
+  for (int64_t t : request.times_us) {
+    Frame f;
+    f.image = problem.render(x, t);
+    f.exposure_start_us = f.exposure_end_us = t;
+    f.bit_depth = obs.blurry.bit_depth;
+    result.frames.push_back(std::move(f));
+  }
+  result.disparity = inverse_depth.empty() ? cv::Mat::zeros(camera.height, camera.width, CV_32F)
+                                           : inverse_depth.clone();
+  result.timings_s["render"] = secondsSince(render_start);
+  std::vector<StampedPose> trajectory;
+  for (int k = 0; k <= 100; ++k) {
+    const int64_t t = t0 + (t1 - t0) * k / 100;
+    trajectory.push_back({t, problem.motion().poseAt(t)});
+  }
+  result.trajectory = std::move(trajectory);
+  result.parameters["iterations"] = iterations;
+  result.parameters["virtual_views"] = problem.views();
+  result.parameters["field_parameters"] = problem.size();
+  result.parameters["blur_px_motion"] = problem.blurLength();
+  result.parameters["beta"] = po.beta;
+  result.parameters["final_blur_term"] = terms.blur;
+  result.parameters["final_event_term"] = terms.event;
+  if (terms.blur > 0) result.parameters["blur_fit_psnr"] = -10 * std::log10(terms.blur);
+  const SE3 over = motion.poseAt(t0).inverse() * motion.poseAt(t1);
+  result.parameters["initial_rotation_deg"] =
+      logSO3(over.rotation()).norm() * 180 / std::numbers::pi;
+}
+
 }  // namespace
 
 DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& request) {
   const auto start = Clock::now();
   DeblurResult result;
   const ThreadScope threads(options_.threads);
-  const Start s = prepare(obs, options_, result);
+  Start s = prepare(obs, options_, result);
   const BenerfOptions& o = s.options;
+  // The pixel grid needs the registered motion; without it (the rigid camera did not explain the
+  // registration) the hash field, whose training refines the trajectory.
+  result.parameters["representation_pixels"] = 0;
+  if (o.field == BenerfOptions::FieldKind::kPixels && !s.motion.poses.empty()) {
+    result.parameters["representation_pixels"] = 1;
+    runPixelGrid(obs, request, s, start, result);
+    result.timings_s["total"] = secondsSince(start);
+    return result;
+  }
+  if (o.field == BenerfOptions::FieldKind::kPixels) {
+    s.options.field = BenerfOptions::FieldKind::kHash;
+    s.options.init = BenerfOptions::Init::kEvents;
+  }
   BenerfProblem<float> problem(obs, o, s.views);
   if (o.init == BenerfOptions::Init::kEvents) initialiseFromEvents(obs, problem, s.blur_px, result);
   if (o.init == BenerfOptions::Init::kFrames)

@@ -5,11 +5,14 @@
 
 #include <cmath>
 #include <filesystem>
+#include <opencv2/imgproc.hpp>
+#include <random>
 
 #include "evkit/base/error.h"
 #include "evkit/deblur/edi.h"
 #include "evkit/deblur/metrics.h"
 #include "evkit/deblur/observation.h"
+#include "evkit/deblur/pixel_grid.h"
 #include "evkit/synth/generator.h"
 #include "test_util.h"
 
@@ -448,6 +451,146 @@ TEST(Benerf, NoNanOnBlackSaturatedTexturelessOrEventFreeInputs) {
         EXPECT_TRUE(cv::checkRange(f.image)) << "level " << level << ", events " << with_events;
       EXPECT_TRUE(cv::checkRange(r.disparity));
       for (const auto& [it, loss] : r.curve) EXPECT_TRUE(std::isfinite(loss)) << "iteration " << it;
+    }
+  }
+}
+
+}  // namespace
+}  // namespace evkit
+
+namespace evkit {
+namespace {
+
+// The pixel grid's loss against central differences in double, on a scene that moves with
+// rotation and translation over a slanted inverse depth, with two cells per pixel, grey and colour,
+// under both log mappings: every checked cell's gradient (inside the image, in the margin, and
+// the mid-exposure cells the event term reads directly).
+TEST(PixelGrid, GradientsMatchCentralDifferences) {
+  for (const bool colour : {false, true}) {
+    for (const bool lin_log : {false, true}) {
+      SCOPED_TRACE(std::string(colour ? "colour" : "grey") + (lin_log ? ", lin-log" : ", log"));
+      Observation obs = makeObservation(24, 18, 4, 3);
+      if (colour) {
+        cv::Mat bgr;
+        cv::cvtColor(obs.blurry.image, bgr, cv::COLOR_GRAY2BGR);
+        cv::multiply(bgr, cv::Scalar(0.8, 1.0, 1.2), obs.blurry.image);
+      }
+      const nerf::PinholeCamera camera = obs.camera.withSize(24, 18);
+      const int64_t t0 = obs.blurry.exposure_start_us, t1 = obs.blurry.exposure_end_us;
+      std::vector<StampedPose> poses;
+      for (int k = 0; k <= 8; ++k) {
+        const double s = k / 8.0 - 0.5;
+        poses.push_back({t0 + (t1 - t0) * k / 8, SE3(expSO3(Vector3(0.02, -0.03, 0.01) * s),
+                                                     Vector3(0.05, 0.02, 0.01) * s)});
+      }
+      const Trajectory motion = fitTrajectory(TrajectoryKind::kCubicSE3, 4, t0, t1, poses);
+      cv::Mat inverse_depth(18, 24, CV_32F);
+      for (int y = 0; y < 18; ++y) {
+        for (int x = 0; x < 24; ++x) inverse_depth.at<float>(y, x) = 0.3f + 0.01f * (x + y);
+      }
+      PixelGridOptions o;
+      o.beta = 0.3;
+      o.subdivision = 2;
+      o.log.lin_log = lin_log;
+      const PixelGridProblem problem(obs, camera, motion, inverse_depth, Contrast{0.2, 0.25}, o);
+      ASSERT_GT(problem.margin(), 0);
+      std::vector<double> x = problem.start(obs.blurry.image);
+      std::mt19937_64 rng(7);
+      std::uniform_real_distribution<double> jitter(-0.3, 0.3);
+      for (double& v : x) v += jitter(rng);
+      std::vector<double> gradient;
+      PixelGridProblem::Terms terms;
+      problem.evaluate(x, &gradient, &terms);
+      ASSERT_GT(terms.blur, 0.0);
+      ASSERT_GT(terms.event, 0.0);
+      std::vector<size_t> checks;
+      for (size_t i = 0; i < x.size(); i += 37) {
+        if (gradient[i] != 0.0) checks.push_back(i);
+      }
+      ASSERT_GT(checks.size(), 40u);
+      const double h = 1e-5;
+      std::vector<double> numeric;
+      double scale = 0;
+      for (const size_t i : checks) {
+        const double saved = x[i];
+        x[i] = saved + h;
+        const double plus = problem.evaluate(x, nullptr);
+        x[i] = saved - h;
+        const double minus = problem.evaluate(x, nullptr);
+        x[i] = saved;
+        numeric.push_back((plus - minus) / (2 * h));
+        scale = std::max(scale, std::abs(numeric.back()));
+      }
+      ASSERT_GT(scale, 1e-8);
+      for (size_t k = 0; k < checks.size(); ++k) {
+        EXPECT_LE(relativeError(gradient[checks[k]], numeric[k], scale), 1e-5)
+            << "cell value " << checks[k] << ": analytic " << gradient[checks[k]] << ", numeric "
+            << numeric[k];
+      }
+    }
+  }
+}
+
+}  // namespace
+}  // namespace evkit
+
+namespace evkit {
+namespace {
+
+// The pixel grid's gradient in the motion (the knots' right perturbations) against central
+// differences of its loss, the image fixed, on a grey and a colour scene.
+TEST(PixelGrid, MotionGradientMatchesCentralDifferences) {
+  for (const bool colour : {false, true}) {
+    SCOPED_TRACE(colour ? "colour" : "grey");
+    Observation obs = makeObservation(24, 18, 4, 3);
+    if (colour) {
+      cv::Mat bgr;
+      cv::cvtColor(obs.blurry.image, bgr, cv::COLOR_GRAY2BGR);
+      cv::multiply(bgr, cv::Scalar(0.8, 1.0, 1.2), obs.blurry.image);
+    }
+    const nerf::PinholeCamera camera = obs.camera.withSize(24, 18);
+    const int64_t t0 = obs.blurry.exposure_start_us, t1 = obs.blurry.exposure_end_us;
+    std::vector<StampedPose> poses;
+    for (int k = 0; k <= 8; ++k) {
+      const double s = k / 8.0 - 0.5;
+      poses.push_back({t0 + (t1 - t0) * k / 8,
+                       SE3(expSO3(Vector3(0.02, -0.03, 0.01) * s), Vector3(0.05, 0.02, 0.01) * s)});
+    }
+    PixelGridOptions o;
+    o.beta = 0.3;
+    o.subdivision = 2;
+    PixelGridProblem problem(obs, camera,
+                             fitTrajectory(TrajectoryKind::kCubicSE3, 4, t0, t1, poses),
+                             cv::Mat(18, 24, CV_32F, cv::Scalar(0.4)), Contrast{0.2, 0.25}, o);
+    std::vector<double> u = problem.start(obs.blurry.image);
+    std::mt19937_64 rng(11);
+    std::uniform_real_distribution<double> jitter(-0.2, 0.2);
+    for (double& v : u) v += jitter(rng);
+    const Eigen::VectorXd analytic = problem.motionGradient(u);
+    const Trajectory motion = problem.motion();
+    const Eigen::Index n = analytic.size();
+    ASSERT_EQ(n, 24);
+    const double h = 1e-5;
+    Eigen::VectorXd numeric(n);
+    for (Eigen::Index i = 0; i < n; ++i) {
+      Eigen::VectorXd step = Eigen::VectorXd::Zero(n);
+      step[i] = h;
+      Trajectory moved = motion;
+      moved.applyKnotSteps(step);
+      problem.setMotion(moved);
+      const double plus = problem.evaluate(u, nullptr);
+      moved = motion;
+      moved.applyKnotSteps(-step);
+      problem.setMotion(moved);
+      const double minus = problem.evaluate(u, nullptr);
+      numeric[i] = (plus - minus) / (2 * h);
+    }
+    problem.setMotion(motion);
+    const double scale = numeric.cwiseAbs().maxCoeff();
+    ASSERT_GT(scale, 1e-8);
+    for (Eigen::Index i = 0; i < n; ++i) {
+      EXPECT_LE(relativeError(analytic[i], numeric[i], scale), 2e-3)
+          << "knot value " << i << ": analytic " << analytic[i] << ", numeric " << numeric[i];
     }
   }
 }

@@ -344,9 +344,12 @@ BenchRow runBench(const Observation& obs, const std::string& group, const std::s
           *r.result.trajectory, obs.gt_poses,
           obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows));
     }
-    if (const auto it = r.result.parameters.find("blur_px_measured");
-        it != r.result.parameters.end())
-      row.blur_estimated_px = it->second;
+    // The blur length the method worked with: from its motion where it has one (the pixel grid),
+    // else as measured through EDI.
+    for (const char* key : {"blur_px_measured", "blur_px_motion"}) {
+      if (const auto it = r.result.parameters.find(key); it != r.result.parameters.end())
+        row.blur_estimated_px = it->second;
+    }
     if (const auto it = r.result.parameters.find("iterations"); it != r.result.parameters.end())
       row.iterations = it->second;
     if (report) *report = std::move(r);

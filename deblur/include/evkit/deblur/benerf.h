@@ -46,9 +46,14 @@ namespace evkit {
 // The defaults are the `balanced` budget's (benerfBudget); every setting, its range and its help
 // are declared once in benerfSettings() (benerf_options.cc).
 struct BenerfOptions {
-  // Field: the fast hash-grid field, or the paper's 8 x 256 MLP (the reference).
-  enum class FieldKind { kHash, kMlp };
+  // Field: the fast hash-grid field, the paper's 8 x 256 MLP (the reference), or the pixel grid
+  // (PixelGridProblem, evkit/deblur/pixel_grid.h): the mid-exposure camera's frustum with `cells`
+  // x `cells` cells per pixel at the inverse depth registered between EDI's latent frames
+  // (motionFromLatentFrames), the image found by L-BFGS on BeNeRF's two terms with the registered
+  // trajectory. Where the registration gives no motion, the hash field.
+  enum class FieldKind { kHash, kMlp, kPixels };
   FieldKind field = FieldKind::kHash;
+  int cells = 2;
   nerf::HashFieldConfig
       hash;  // levels, features, table; finest resolution adapted to the image when 0
   int finest_resolution = 0;  // 0: the image's larger side
@@ -208,6 +213,9 @@ struct ExposureMotion {
   double residual_rotation_px = 0, residual_plane_px = 0,
          residual_depth_px = 0;  // RMS of each model's residuals
   int tracks = 0;                // textured points tracked
+  // The chosen model's inverse depth (1 / z in the poses' units) at every pixel of the mid-exposure
+  // frame (float32); empty without poses.
+  cv::Mat inverse_depth;
 };
 ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamera& camera,
                                       const std::optional<Contrast>& contrast,

@@ -1,0 +1,100 @@
+// BeNeRF's scene as a pixel grid at the mid-exposure camera, each cell at its registered inverse
+// depth (benerf_pixels.cc).
+#pragma once
+
+#include <Eigen/Core>
+#include <chrono>
+#include <opencv2/core.hpp>
+#include <vector>
+
+#include "evkit/deblur/observation.h"
+#include "evkit/events/log_intensity.h"
+#include "evkit/nerf/camera.h"
+#include "evkit/spline/trajectory.h"
+
+namespace evkit {
+
+struct PixelGridOptions {
+  double beta = 0.01;      // weight of the event term (a mean over pixels and views)
+  double dim_frame = 0.1;  // as BenerfOptions::dim_frame
+  int min_views = 8, max_views = 64;
+  int subdivision = 1;       // cells per pixel along each axis
+  double smoothness = 1e-2;  // weight of the squared log differences between neighbouring cells
+  int motion_steps = 6;      // Levenberg-Marquardt steps on the motion before the image
+  LogMapping log;
+};
+
+// A position on the canvas: its bilinear stencil's top-left cell and the offsets.
+struct CanvasTaps {
+  int index;
+  float ax, ay;
+};
+
+class PixelGridProblem {
+ public:
+  // `motion`: the camera at each time of the exposure in the mid-exposure camera's frame (T_mid_t);
+  // `inverse_depth`: 1 / z of the scene at each mid-exposure pixel in the motion's units (float32;
+  // empty: at infinity, rotation alone moves the image).
+  PixelGridProblem(const Observation& obs, const PinholeCamera& camera, const Trajectory& motion,
+                   const cv::Mat& inverse_depth, const Contrast& contrast,
+                   const PixelGridOptions& options);
+
+  struct Terms {
+    double blur = 0, event = 0;  // the two terms' means, unweighted
+  };
+  // The unknowns: the canvas's log intensities (the image and its margin), row-major, channels
+  // interleaved.
+  int size() const { return canvas_w_ * canvas_h_ * channels_; }
+  int views() const { return views_; }
+  int margin() const { return margin_; }
+  // The longest image path of a pixel over the exposure, by the motion and the inverse depth.
+  double blurLength() const { return blur_px_; }
+  // The canvas with `mid_image` inside and its border replicated into the margin.
+  std::vector<double> start(const cv::Mat& mid_image) const;
+  // The loss (weighted blur term + weighted event term) and, optionally, its gradient.
+  double evaluate(const std::vector<double>& x, std::vector<double>* gradient,
+                  Terms* terms = nullptr) const;
+  // L-BFGS from x until `iterations` or the deadline; returns the iterations done.
+  int solve(std::vector<double>& x, int iterations, Terms* terms = nullptr,
+            std::chrono::steady_clock::time_point deadline =
+                std::chrono::steady_clock::time_point::max()) const;
+  // Levenberg-Marquardt steps on the motion with the image u fixed (the event term's residuals;
+  // a step is taken when the whole loss falls); returns the loss.
+  double refineMotion(const std::vector<double>& u, int iterations);
+  // The loss's gradient with respect to the knots' right perturbations (6 per knot), with the
+  // image u fixed, from every `stride`-th row and column.
+  Eigen::VectorXd motionGradient(const std::vector<double>& u, int stride = 1) const;
+  const Trajectory& motion() const { return motion_; }
+  void setMotion(const Trajectory& motion);  // the same exposure's
+  // The image the camera sees at time t.
+  cv::Mat render(const std::vector<double>& x, int64_t t_us) const;
+
+ private:
+  // Where pixel (x, y) of the camera at `pose` sees the mid image (no margin), and the inverse
+  // depth it took.
+  Eigen::Vector2d cellOf(int x, int y, const SE3& pose, double* rho_used = nullptr) const;
+  void buildTaps();  // every view's stencils from the motion
+  // The Gauss-Newton normal equations of the loss in the knots' right perturbations, from
+  // intensities x (the weighted sum's half gradient and its approximate Hessian).
+  void normalEquations(const std::vector<double>& x, int stride, Eigen::MatrixXd& hessian,
+                       Eigen::VectorXd& gradient) const;
+  double intensityOf(double u, double* slope) const;  // from a log value, and dI/du
+  // A mid-image coordinate on the canvas's cell grid.
+  double cellCoordinate(double image) const { return (image + margin_) * options_.subdivision; }
+
+  PinholeCamera camera_;
+  PixelGridOptions options_;
+  int channels_;
+  Trajectory motion_;
+  cv::Mat inverse_depth_;
+  std::vector<Vector3> directions_;
+  int64_t mid_us_ = 0;
+  double blur_px_ = 0, blur_weight_ = 1;
+  int views_ = 0, margin_ = 0, canvas_w_ = 0, canvas_h_ = 0;
+  std::vector<int64_t> times_us_;
+  std::vector<CanvasTaps> taps_;  // per view and pixel
+  std::vector<float> change_;     // per view and pixel: the events' log change since mid-exposure
+  cv::Mat blurry_;
+};
+
+}  // namespace evkit

@@ -1,0 +1,588 @@
+// BeNeRF's scene as a pixel grid: the mid-exposure camera's frustum with one cell per pixel (and a
+// margin for what the exposure's other views see), each cell at the inverse depth registered
+// between EDI's latent frames. A view at time t sees a cell through the camera's pose at t, so the
+// virtual views are reprojections of one image. The image is found by L-BFGS on BeNeRF's two terms:
+// the views' mean against the blurry frame (linear) and each view's log change from mid-exposure
+// against the events accumulated since then (the direct form, C-weighted).
+
+#include "evkit/deblur/pixel_grid.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+#include <deque>
+#include <opencv2/imgproc.hpp>
+
+#include "benerf_common.h"
+#include "evkit/base/error.h"
+#include "evkit/nerf/volume_render.h"
+
+namespace evkit {
+
+namespace {
+
+// A canvas position as its bilinear stencil's top-left cell and offsets, clamped inside the canvas.
+using Taps = CanvasTaps;
+
+Taps tapsAt(double u, double v, int width, int height) {
+  const double cu = std::clamp(u, 0.0, width - 1.001), cv = std::clamp(v, 0.0, height - 1.001);
+  const int x0 = static_cast<int>(cu), y0 = static_cast<int>(cv);
+  return {y0 * width + x0, static_cast<float>(cu - x0), static_cast<float>(cv - y0)};
+}
+
+// The channels of a canvas x (row-major, C channels interleaved, `width` cells a row) at a
+// position, and the adjoint: d added to the position's four cells.
+void sample(const double* x, int width, int C, const Taps& t, double* out) {
+  const double* a = x + static_cast<size_t>(t.index) * C;
+  const double* b = a + static_cast<size_t>(width) * C;
+  const double w00 = (1 - t.ay) * (1 - t.ax), w01 = (1 - t.ay) * t.ax, w10 = t.ay * (1 - t.ax),
+               w11 = t.ay * t.ax;
+  for (int c = 0; c < C; ++c) out[c] = w00 * a[c] + w01 * a[C + c] + w10 * b[c] + w11 * b[C + c];
+}
+
+void sampleBackward(double* g, int width, int C, const Taps& t, const double* d) {
+  double* a = g + static_cast<size_t>(t.index) * C;
+  double* b = a + static_cast<size_t>(width) * C;
+  const double w00 = (1 - t.ay) * (1 - t.ax), w01 = (1 - t.ay) * t.ax, w10 = t.ay * (1 - t.ax),
+               w11 = t.ay * t.ax;
+  for (int c = 0; c < C; ++c) {
+    a[c] += w00 * d[c];
+    a[C + c] += w01 * d[c];
+    b[c] += w10 * d[c];
+    b[C + c] += w11 * d[c];
+  }
+}
+
+}  // namespace
+
+PixelGridProblem::PixelGridProblem(const Observation& obs, const PinholeCamera& camera,
+                                   const Trajectory& motion, const cv::Mat& inverse_depth,
+                                   const Contrast& contrast, const PixelGridOptions& options)
+    : camera_(camera),
+      options_(options),
+      channels_(obs.blurry.image.channels()),
+      motion_(motion),
+      inverse_depth_(inverse_depth.empty() ? cv::Mat::zeros(camera.height, camera.width, CV_32F)
+                                           : inverse_depth) {
+  const int W = camera_.width, H = camera_.height;
+  if (channels_ != 1 && channels_ != 3)
+    throw Error("benerf: the blurry frame must be grey or colour, not " +
+                std::to_string(channels_) + " channels");
+  if (inverse_depth_.size() != cv::Size(W, H) || inverse_depth_.type() != CV_32F)
+    throw Error("benerf: the inverse depth map must be float32 at the camera's size");
+  directions_.resize(static_cast<size_t>(W) * H);
+  for (int y = 0; y < H; ++y) {
+    for (int x = 0; x < W; ++x)
+      directions_[static_cast<size_t>(y) * W + x] = nerf::pixelDirection(camera_, x, y);
+  }
+  const int64_t t0 = obs.blurry.exposure_start_us, t1 = obs.blurry.exposure_end_us;
+  mid_us_ = obs.blurry.midExposure();
+
+  // The views: as many as the longest image path over the exposure has pixels (the blur integral
+  // by the midpoint rule at about one view per pixel of motion), within the options' bounds.
+  blur_px_ = 0;
+  for (int y = 0; y < H; y += std::max(1, H / 16)) {
+    for (int x = 0; x < W; x += std::max(1, W / 16)) {
+      double path = 0;
+      Eigen::Vector2d last = cellOf(x, y, motion_.poseAt(t0));
+      for (int k = 1; k <= 32; ++k) {
+        const Eigen::Vector2d q = cellOf(x, y, motion_.poseAt(t0 + (t1 - t0) * k / 32));
+        path += (q - last).norm();
+        last = q;
+      }
+      blur_px_ = std::max(blur_px_, path);
+    }
+  }
+  views_ =
+      std::clamp(static_cast<int>(std::ceil(blur_px_)) + 1, options_.min_views, options_.max_views);
+  for (int k = 0; k < views_; ++k) {
+    times_us_.push_back(t0 + std::llround((k + 0.5) / views_ * static_cast<double>(t1 - t0)));
+  }
+
+  // The margin that holds what every view sees.
+  double reach = 0;
+  for (int k = 0; k < views_; ++k) {
+    const SE3 pose = motion_.poseAt(times_us_[static_cast<size_t>(k)]);
+#pragma omp parallel for reduction(max : reach) schedule(static)
+    for (int y = 0; y < H; ++y) {
+      for (int x = 0; x < W; ++x) {
+        const Eigen::Vector2d q = cellOf(x, y, pose);
+        reach = std::max(reach, std::max(std::abs(q.x() - x), std::abs(q.y() - y)));
+      }
+    }
+  }
+  margin_ = std::min(static_cast<int>(std::ceil(reach)) + 2, std::max(W, H));
+  const int S = options_.subdivision;
+  canvas_w_ = (W + 2 * margin_) * S;
+  canvas_h_ = (H + 2 * margin_) * S;
+  buildTaps();
+
+  // The blurry frame, and the events accumulated from mid-exposure to each view's time.
+  obs.blurry.image.convertTo(blurry_, CV_MAKETYPE(CV_32F, channels_));
+  const cv::Scalar mean = cv::mean(blurry_);
+  double brightness = 0;
+  for (int c = 0; c < channels_; ++c) brightness += mean[c] / channels_;
+  blur_weight_ = brightness < options_.dim_frame
+                     ? std::pow(options_.dim_frame / std::max(brightness, 1e-3), 2)
+                     : 1.0;
+  change_.assign(static_cast<size_t>(views_) * directions_.size(), 0.0f);
+  const EventSpan ev = obs.events.sliceTime(t0, t1 + 1);
+  for (size_t e = 0; e < ev.size(); ++e) {
+    if (ev.x[e] >= W || ev.y[e] >= H) continue;
+    const size_t pixel = static_cast<size_t>(ev.y[e]) * W + ev.x[e];
+    const float step = static_cast<float>(ev.p[e] > 0 ? contrast.on : -contrast.off);
+    // An event after mid-exposure raises the level of the views after it; one before lowers the
+    // views before it (their level is below mid's by the events in between).
+    for (int k = 0; k < views_; ++k) {
+      const int64_t tk = times_us_[static_cast<size_t>(k)];
+      if (ev.t[e] > mid_us_ && ev.t[e] <= tk)
+        change_[static_cast<size_t>(k) * directions_.size() + pixel] += step;
+      else if (ev.t[e] <= mid_us_ && ev.t[e] > tk)
+        change_[static_cast<size_t>(k) * directions_.size() + pixel] -= step;
+    }
+  }
+}
+
+void PixelGridProblem::buildTaps() {
+  const int W = camera_.width, H = camera_.height;
+  const size_t N = directions_.size();
+  taps_.resize(static_cast<size_t>(views_) * N);
+  for (int k = 0; k < views_; ++k) {
+    const SE3 pose = motion_.poseAt(times_us_[static_cast<size_t>(k)]);
+#pragma omp parallel for schedule(static)
+    for (int y = 0; y < H; ++y) {
+      for (int x = 0; x < W; ++x) {
+        const Eigen::Vector2d q = cellOf(x, y, pose);
+        taps_[static_cast<size_t>(k) * N + static_cast<size_t>(y) * W + x] =
+            tapsAt(cellCoordinate(q.x()), cellCoordinate(q.y()), canvas_w_, canvas_h_);
+      }
+    }
+  }
+}
+
+Eigen::Vector2d PixelGridProblem::cellOf(int x, int y, const SE3& pose, double* rho_used) const {
+  // The pixel's point at the mid frame's inverse depth there, then once more at the inverse depth
+  // where that lands (the view and the mid frame see nearly the same point).
+  const Vector3& d = directions_[static_cast<size_t>(y) * camera_.width + x];
+  const Matrix3 R = pose.rotation().toRotationMatrix();
+  const Vector3 Rd = R * d;
+  double rho = inverse_depth_.at<float>(y, x);
+  Eigen::Vector2d q = nerf::projectPoint(camera_, Rd + rho * pose.translation());
+  const int qx = std::clamp(static_cast<int>(std::lround(q.x())), 0, camera_.width - 1),
+            qy = std::clamp(static_cast<int>(std::lround(q.y())), 0, camera_.height - 1);
+  rho = inverse_depth_.at<float>(qy, qx);
+  if (rho_used) *rho_used = rho;
+  return nerf::projectPoint(camera_, Rd + rho * pose.translation());
+}
+
+double PixelGridProblem::intensityOf(double u, double* slope) const {
+  const LogMapping& log = options_.log;
+  if (!log.lin_log || u >= std::log(LogMapping::kLinLogThreshold)) {
+    const double e = std::exp(u);
+    *slope = e;
+    return log.lin_log ? e : e - log.eps;
+  }
+  *slope =
+      LogMapping::kLinLogThreshold / std::log(20.0);  // the linear part: x ln(20) / 20 - ln 255
+  return (u + std::log(255.0)) * *slope;
+}
+
+std::vector<double> PixelGridProblem::start(const cv::Mat& mid_image) const {
+  cv::Mat f;
+  mid_image.convertTo(f, CV_MAKETYPE(CV_64F, channels_));
+  const int C = channels_, W = f.cols, H = f.rows, S = options_.subdivision;
+  std::vector<double> x(static_cast<size_t>(size()));
+  // Cell (i, j) is at image coordinates (i / S - margin, j / S - margin); outside the image, the
+  // nearest edge's value.
+  for (int j = 0; j < canvas_h_; ++j) {
+    const double v = std::clamp(static_cast<double>(j) / S - margin_, 0.0, H - 1.0);
+    const int y0 = std::min(static_cast<int>(v), H - 2 < 0 ? 0 : H - 2),
+              y1 = std::min(y0 + 1, H - 1);
+    const double ay = v - y0;
+    for (int i = 0; i < canvas_w_; ++i) {
+      const double u = std::clamp(static_cast<double>(i) / S - margin_, 0.0, W - 1.0);
+      const int x0 = std::min(static_cast<int>(u), W - 2 < 0 ? 0 : W - 2),
+                x1 = std::min(x0 + 1, W - 1);
+      const double ax = u - x0;
+      for (int c = 0; c < C; ++c) {
+        const double value =
+            (1 - ay) *
+                ((1 - ax) * f.ptr<double>(y0)[x0 * C + c] + ax * f.ptr<double>(y0)[x1 * C + c]) +
+            ay * ((1 - ax) * f.ptr<double>(y1)[x0 * C + c] + ax * f.ptr<double>(y1)[x1 * C + c]);
+        x[(static_cast<size_t>(j) * canvas_w_ + i) * C + c] =
+            options_.log.logOf(std::max(value, 0.0));
+      }
+    }
+  }
+  return x;
+}
+
+double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<double>* gradient,
+                                  Terms* terms) const {
+  // The unknowns are the cells' log intensities (the event model's mapping); the views sample the
+  // cells' intensities bilinearly (linear light).
+  std::vector<double> x(u.size()), slope(u.size());
+  for (size_t i = 0; i < u.size(); ++i) x[i] = intensityOf(u[i], &slope[i]);
+  const int W = camera_.width, H = camera_.height, C = channels_, V = views_;
+  const size_t N = directions_.size();
+  const double blur_scale = blur_weight_ / (static_cast<double>(N) * C),
+               event_scale = options_.beta / (static_cast<double>(N) * V);
+  const LogMapping& log = options_.log;
+  double blur_sum = 0, event_sum = 0;
+  if (gradient) gradient->assign(x.size(), 0.0);
+  const int threads = omp_get_max_threads();
+  std::vector<std::vector<double>> partial(gradient ? static_cast<size_t>(threads) : 0);
+#pragma omp parallel reduction(+ : blur_sum, event_sum)
+  {
+    std::vector<double>* g = nullptr;
+    if (gradient) {
+      auto& mine = partial[static_cast<size_t>(omp_get_thread_num())];
+      mine.assign(x.size(), 0.0);
+      g = &mine;
+    }
+    std::vector<double> colour(static_cast<size_t>(V) * C), d_grey(static_cast<size_t>(V));
+#pragma omp for schedule(static)
+    for (int y = 0; y < H; ++y) {
+      for (int px = 0; px < W; ++px) {
+        const size_t pixel = static_cast<size_t>(y) * W + px;
+        const int S = options_.subdivision;
+        const size_t mid =
+            (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
+        const double mid_grey = std::max(0.0, nerf::greyOf(&x[mid], C));
+        const double mid_log = log.logOf(mid_grey);
+        double d_mid_log = 0;
+        double sum[3] = {0, 0, 0};
+        for (int k = 0; k < V; ++k) {
+          double* out = &colour[static_cast<size_t>(k) * C];
+          sample(x.data(), canvas_w_, C, taps_[static_cast<size_t>(k) * N + pixel], out);
+          for (int c = 0; c < C; ++c) sum[c] += out[c];
+          const double grey = std::max(0.0, nerf::greyOf(out, C));
+          const double r = log.logOf(grey) - mid_log - change_[static_cast<size_t>(k) * N + pixel];
+          event_sum += r * r;
+          d_grey[static_cast<size_t>(k)] = 2 * event_scale * r * log.logSlope(grey);
+          d_mid_log -= 2 * event_scale * r;
+        }
+        double d_sum[3] = {0, 0, 0};
+        for (int c = 0; c < C; ++c) {
+          const double r = sum[c] / V - blurry_.ptr<float>(y)[px * C + c];
+          blur_sum += r * r;
+          d_sum[c] = 2 * blur_scale * r / V;
+        }
+        if (!g) continue;
+        double d_colour[3];
+        for (int k = 0; k < V; ++k) {
+          nerf::greyBackward(d_grey[static_cast<size_t>(k)], C, d_colour);
+          for (int c = 0; c < C; ++c) d_colour[c] += d_sum[c];
+          sampleBackward(g->data(), canvas_w_, C, taps_[static_cast<size_t>(k) * N + pixel],
+                         d_colour);
+        }
+        nerf::greyBackward(d_mid_log * log.logSlope(mid_grey), C, d_colour);
+        for (int c = 0; c < C; ++c) (*g)[mid + c] += d_colour[c];
+      }
+    }
+  }
+  if (gradient) {
+    for (const auto& p : partial) {
+      for (size_t i = 0; i < x.size(); ++i) (*gradient)[i] += p[i];
+    }
+    for (size_t i = 0; i < x.size(); ++i) (*gradient)[i] *= slope[i];
+  }
+  // Smoothness of the log image between neighbouring cells (sub-pixel detail only where the data
+  // asks for it).
+  double smooth = 0;
+  const double lambda = options_.smoothness;
+  if (lambda > 0) {
+    const double scale = lambda / static_cast<double>(u.size());
+    for (int j = 0; j < canvas_h_; ++j) {
+      for (int i = 0; i < canvas_w_; ++i) {
+        for (int c = 0; c < C; ++c) {
+          const size_t a = (static_cast<size_t>(j) * canvas_w_ + i) * C + c;
+          if (i + 1 < canvas_w_) {
+            const double d = u[a + C] - u[a];
+            smooth += scale * d * d;
+            if (gradient) (*gradient)[a + C] += 2 * scale * d, (*gradient)[a] -= 2 * scale * d;
+          }
+          if (j + 1 < canvas_h_) {
+            const size_t b = a + static_cast<size_t>(canvas_w_) * C;
+            const double d = u[b] - u[a];
+            smooth += scale * d * d;
+            if (gradient) (*gradient)[b] += 2 * scale * d, (*gradient)[a] -= 2 * scale * d;
+          }
+        }
+      }
+    }
+  }
+  const double blur = blur_sum * blur_scale, event = event_sum * event_scale + smooth;
+  if (terms) *terms = {blur / blur_weight_, event / options_.beta};
+  return blur + event;
+}
+
+int PixelGridProblem::solve(std::vector<double>& x, int iterations, Terms* terms,
+                            std::chrono::steady_clock::time_point deadline) const {
+  // L-BFGS (Nocedal and Wright, Numerical Optimization, algorithm 7.4) with a backtracking line
+  // search on the Armijo condition.
+  constexpr size_t kMemory = 8;
+  std::deque<std::vector<double>> s_list, y_list;
+  std::deque<double> rho_list;
+  std::vector<double> g, g_new, direction(x.size()), x_new(x.size());
+  double f = evaluate(x, &g);
+  int done = 0;
+  for (; done < iterations && std::chrono::steady_clock::now() < deadline; ++done) {
+    direction = g;
+    std::vector<double> alpha(s_list.size());
+    for (size_t i = s_list.size(); i-- > 0;) {
+      double dot = 0;
+      for (size_t j = 0; j < x.size(); ++j) dot += s_list[i][j] * direction[j];
+      alpha[i] = rho_list[i] * dot;
+      for (size_t j = 0; j < x.size(); ++j) direction[j] -= alpha[i] * y_list[i][j];
+    }
+    double gamma = 1;
+    if (!s_list.empty()) {
+      double sy = 0, yy = 0;
+      for (size_t j = 0; j < x.size(); ++j)
+        sy += s_list.back()[j] * y_list.back()[j], yy += y_list.back()[j] * y_list.back()[j];
+      gamma = sy / yy;
+    } else {
+      double gg = 0;
+      for (double v : g) gg += v * v;
+      gamma = 1e-3 / std::sqrt(std::max(gg, 1e-300));  // a first step of 1e-3 in intensity
+    }
+    for (double& v : direction) v *= gamma;
+    for (size_t i = 0; i < s_list.size(); ++i) {
+      double dot = 0;
+      for (size_t j = 0; j < x.size(); ++j) dot += y_list[i][j] * direction[j];
+      const double beta = rho_list[i] * dot;
+      for (size_t j = 0; j < x.size(); ++j) direction[j] += (alpha[i] - beta) * s_list[i][j];
+    }
+    double slope = 0;
+    for (size_t j = 0; j < x.size(); ++j) slope -= g[j] * direction[j];
+    if (!(slope < 0)) break;  // not a descent direction: converged or lost
+    double step = 1, f_new = f;
+    bool accepted = false;
+    for (int tries = 0; tries < 20; ++tries, step *= 0.5) {
+      for (size_t j = 0; j < x.size(); ++j) x_new[j] = x[j] - step * direction[j];
+      f_new = evaluate(x_new, &g_new);
+      if (f_new <= f + 1e-4 * step * slope) {
+        accepted = true;
+        break;
+      }
+    }
+    if (!accepted) break;
+    std::vector<double> s(x.size()), y(x.size());
+    double sy = 0;
+    for (size_t j = 0; j < x.size(); ++j) {
+      s[j] = x_new[j] - x[j];
+      y[j] = g_new[j] - g[j];
+      sy += s[j] * y[j];
+    }
+    x.swap(x_new);
+    g.swap(g_new);
+    f = f_new;
+    if (sy > 1e-300) {
+      s_list.push_back(std::move(s));
+      y_list.push_back(std::move(y));
+      rho_list.push_back(1 / sy);
+      if (s_list.size() > kMemory) s_list.pop_front(), y_list.pop_front(), rho_list.pop_front();
+    }
+  }
+  if (terms) evaluate(x, nullptr, terms);
+  return done;
+}
+
+void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
+                                       Eigen::MatrixXd& hessian, Eigen::VectorXd& gradient) const {
+  // Gauss-Newton on both terms' residuals with respect to the knots' right perturbations, through
+  // the image's gradient where each view sees it (each pixel's point at its inverse depth moved by
+  // the view's pose); every `stride`-th row and column.
+  const int W = camera_.width, H = camera_.height, C = channels_, S = options_.subdivision,
+            V = views_;
+  const size_t N = directions_.size();
+  const LogMapping& log = options_.log;
+  const Eigen::Index dim = 6 * static_cast<Eigen::Index>(motion_.knots().size());
+  const double blur_scale = blur_weight_ / (static_cast<double>(N) * C),
+               event_scale = options_.beta / (static_cast<double>(N) * V);
+  std::vector<SE3> poses(static_cast<size_t>(V));
+  std::vector<std::array<SE3, 6>> moved(static_cast<size_t>(V));
+  std::vector<KnotJacobians> jacobians(static_cast<size_t>(V));
+  constexpr double h = 1e-6;
+  for (int k = 0; k < V; ++k) {
+    const auto i = static_cast<size_t>(k);
+    poses[i] = motion_.poseAt(times_us_[i], &jacobians[i]);
+    for (int j = 0; j < 6; ++j)
+      moved[i][static_cast<size_t>(j)] = poses[i] * expSE3(Vector6::Unit(j) * h);
+  }
+  hessian = Eigen::MatrixXd::Zero(dim, dim);
+  gradient = Eigen::VectorXd::Zero(dim);
+#pragma omp parallel
+  {
+    Eigen::MatrixXd Hl = Eigen::MatrixXd::Zero(dim, dim);
+    Eigen::VectorXd bl = Eigen::VectorXd::Zero(dim);
+    std::vector<Matrix6> He(static_cast<size_t>(V), Matrix6::Zero());  // event term, per view
+    std::vector<Vector6> be(static_cast<size_t>(V), Vector6::Zero());
+    std::array<Eigen::VectorXd, 3> jb;  // d (mean of the views) / d knots, per channel
+#pragma omp for schedule(static) nowait
+    for (int y = 0; y < H; y += stride) {
+      for (int px = 0; px < W; px += stride) {
+        const size_t pixel = static_cast<size_t>(y) * W + px;
+        const size_t mid =
+            (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
+        const double mid_log = log.logOf(std::max(0.0, nerf::greyOf(&x[mid], C)));
+        double sum[3] = {0, 0, 0};
+        for (int c = 0; c < C; ++c) jb[static_cast<size_t>(c)] = Eigen::VectorXd::Zero(dim);
+        for (int k = 0; k < V; ++k) {
+          const auto ki = static_cast<size_t>(k);
+          double rho;
+          const Eigen::Vector2d q = cellOf(px, y, poses[ki], &rho);
+          const Taps t = tapsAt(cellCoordinate(q.x()), cellCoordinate(q.y()), canvas_w_, canvas_h_);
+          const double* a = x.data() + static_cast<size_t>(t.index) * C;
+          const double* b = a + static_cast<size_t>(canvas_w_) * C;
+          double value[3], du[3], dv[3];
+          for (int c = 0; c < C; ++c) {
+            value[c] = (1 - t.ay) * ((1 - t.ax) * a[c] + t.ax * a[C + c]) +
+                       t.ay * ((1 - t.ax) * b[c] + t.ax * b[C + c]);
+            du[c] = S * ((1 - t.ay) * (a[C + c] - a[c]) + t.ay * (b[C + c] - b[c]));
+            dv[c] = S * ((1 - t.ax) * (b[c] - a[c]) + t.ax * (b[C + c] - a[C + c]));
+            sum[c] += value[c];
+          }
+          Eigen::Matrix<double, 2, 6> dq;
+          const Vector3& d = directions_[pixel];
+          for (int j = 0; j < 6; ++j) {
+            const SE3& m = moved[ki][static_cast<size_t>(j)];
+            dq.col(j) =
+                (nerf::projectPoint(camera_, m.rotation() * d + rho * m.translation()) - q) / h;
+          }
+          const KnotJacobians& J = jacobians[ki];
+          for (int c = 0; c < C; ++c) {
+            const Vector6 dvalue = (du[c] * dq.row(0) + dv[c] * dq.row(1)).transpose() / V;
+            for (int n = 0; n < J.count; ++n) {
+              jb[static_cast<size_t>(c)].segment<6>(6 * (J.first_knot + n)) +=
+                  J.d_pose_d_knot[static_cast<size_t>(n)].transpose() * dvalue;
+            }
+          }
+          const double grey = nerf::greyOf(value, C);
+          if (!(grey > 0)) continue;
+          const double r = log.logOf(grey) - mid_log - change_[static_cast<size_t>(k) * N + pixel];
+          const double slope = log.logSlope(grey);
+          const Vector6 g =
+              (slope * nerf::greyOf(du, C) * dq.row(0) + slope * nerf::greyOf(dv, C) * dq.row(1))
+                  .transpose();
+          He[ki] += event_scale * g * g.transpose();
+          be[ki] += event_scale * g * r;
+        }
+        for (int c = 0; c < C; ++c) {
+          const double r = sum[c] / V - blurry_.ptr<float>(y)[px * C + c];
+          const Eigen::VectorXd& j = jb[static_cast<size_t>(c)];
+          Hl.noalias() += blur_scale * j * j.transpose();
+          bl += blur_scale * r * j;
+        }
+      }
+    }
+    for (int k = 0; k < V; ++k) {
+      const KnotJacobians& J = jacobians[static_cast<size_t>(k)];
+      for (int a = 0; a < J.count; ++a) {
+        const Eigen::Index ia = 6 * (J.first_knot + a);
+        const Matrix6& Ja = J.d_pose_d_knot[static_cast<size_t>(a)];
+        bl.segment<6>(ia) += Ja.transpose() * be[static_cast<size_t>(k)];
+        for (int b = 0; b < J.count; ++b) {
+          Hl.block<6, 6>(ia, 6 * (J.first_knot + b)) +=
+              Ja.transpose() * He[static_cast<size_t>(k)] * J.d_pose_d_knot[static_cast<size_t>(b)];
+        }
+      }
+    }
+#pragma omp critical
+    {
+      hessian += Hl;
+      gradient += bl;
+    }
+  }
+}
+
+Eigen::VectorXd PixelGridProblem::motionGradient(const std::vector<double>& u, int stride) const {
+  std::vector<double> x(u.size());
+  for (size_t i = 0; i < u.size(); ++i) {
+    double slope;
+    x[i] = intensityOf(u[i], &slope);
+  }
+  Eigen::MatrixXd hessian;
+  Eigen::VectorXd gradient;
+  normalEquations(x, stride, hessian, gradient);
+  return 2 * gradient;  // of the sum of weighted squares
+}
+
+void PixelGridProblem::setMotion(const Trajectory& motion) {
+  motion_ = motion;
+  buildTaps();
+}
+
+double PixelGridProblem::refineMotion(const std::vector<double>& u, int iterations) {
+  // Levenberg-Marquardt on the knots with the image fixed, on every other row and column. Called
+  // before the image is solved for (EDI's frame), which has not yet taken up the motion's errors
+  // into its texture.
+  std::vector<double> x(u.size());
+  for (size_t i = 0; i < u.size(); ++i) {
+    double slope;
+    x[i] = intensityOf(u[i], &slope);
+  }
+  const Eigen::Index dim = 6 * static_cast<Eigen::Index>(motion_.knots().size());
+  double loss = evaluate(u, nullptr);
+  double damping = 1e-3;
+  for (int iteration = 0; iteration < iterations; ++iteration) {
+    Eigen::MatrixXd hessian;
+    Eigen::VectorXd gradient;
+    normalEquations(x, 2, hessian, gradient);
+    bool improved = false;
+    for (int attempt = 0; attempt < 6 && !improved; ++attempt) {
+      Eigen::MatrixXd A = hessian;
+      A.diagonal() += damping * hessian.diagonal() + Eigen::VectorXd::Constant(dim, 1e-12);
+      const Eigen::VectorXd step = A.ldlt().solve(-gradient);
+      if (!step.allFinite()) break;
+      const std::vector<SE3> saved = motion_.knots();
+      motion_.applyKnotSteps(step);
+      // The canvas is the mid-exposure camera's: the trajectory is moved back to pass through
+      // identity there (a constant transform of every knot moves the whole spline with it).
+      const SE3 anchor = motion_.poseAt(mid_us_).inverse();
+      for (SE3& knot : motion_.knots()) knot = anchor * knot;
+      buildTaps();
+      const double trial = evaluate(u, nullptr);
+      if (trial < loss) {
+        loss = trial;
+        damping = std::max(1e-6, damping * 0.3);
+        improved = true;
+      } else {
+        motion_.knots() = saved;
+        damping *= 10;
+      }
+    }
+    if (!improved) {
+      buildTaps();
+      break;
+    }
+  }
+  return loss;
+}
+
+cv::Mat PixelGridProblem::render(const std::vector<double>& u, int64_t t_us) const {
+  std::vector<double> x(u.size());
+  for (size_t i = 0; i < u.size(); ++i) {
+    double slope;
+    x[i] = intensityOf(u[i], &slope);
+  }
+  const int W = camera_.width, H = camera_.height, C = channels_;
+  cv::Mat out(H, W, CV_MAKETYPE(CV_32F, C));
+  const SE3 pose = motion_.poseAt(t_us);
+#pragma omp parallel for schedule(static)
+  for (int y = 0; y < H; ++y) {
+    float* row = out.ptr<float>(y);
+    for (int px = 0; px < W; ++px) {
+      const Eigen::Vector2d q = cellOf(px, y, pose);
+      const Taps t = tapsAt(cellCoordinate(q.x()), cellCoordinate(q.y()), canvas_w_, canvas_h_);
+      double value[3];
+      sample(x.data(), canvas_w_, C, t, value);
+      for (int c = 0; c < C; ++c) row[px * C + c] = static_cast<float>(value[c]);
+    }
+  }
+  return out;
+}
+
+}  // namespace evkit
