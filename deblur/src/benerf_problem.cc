@@ -62,6 +62,8 @@ BenerfProblem<T>::BenerfProblem(const Observation& obs, const BenerfOptions& opt
     throw Error("benerf: the blurry frame must be grey or colour, not " +
                 std::to_string(channels_) + " channels");
   if (views_ < 1) throw Error("benerf: need at least one virtual view");
+  if (options.field == BenerfOptions::FieldKind::kPixels)
+    throw Error("benerf: the pixel grid is PixelGridProblem's, not a field of BenerfProblem");
   if (options.field == BenerfOptions::FieldKind::kHash) {
     const int finest = options.finest_resolution > 0 ? options.finest_resolution
                                                      : std::max(camera_.width, camera_.height);

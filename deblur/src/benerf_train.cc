@@ -426,7 +426,12 @@ void runPixelGrid(const Observation& obs, const DeblurRequest& request, const St
                            : Clock::time_point::max();
   const int steps = std::max(2, o.iterations / 5);
   if (po.motion_steps > 0) problem.refineMotion(x, po.motion_steps);
-  int iterations = problem.solve(x, steps, &terms, deadline);
+  // The loss after every step, and the caller's progress (which may stop the run by throwing).
+  const auto progress = [&](int done, double loss) {
+    result.curve.emplace_back(done, loss);
+    if (request.progress) request.progress(done, steps, loss);
+  };
+  const int iterations = problem.solve(x, steps, &terms, deadline, progress);
   result.timings_s["train"] = secondsSince(train_start);
   const auto render_start = Clock::now();
   for (int64_t t : request.times_us) {
@@ -469,6 +474,10 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
   // The pixel grid needs the registered motion; without it (the rigid camera did not explain the
   // registration) the hash field, whose training refines the trajectory.
   result.parameters["representation_pixels"] = 0;
+  if (o.field == BenerfOptions::FieldKind::kPixels && (!o.checkpoint.empty() || !o.resume.empty()))
+    throw Error(
+        "benerf: checkpoint and resume are for field=hash and field=mlp (the pixel grid is solved "
+        "in one go)");
   if (o.field == BenerfOptions::FieldKind::kPixels && !s.motion.poses.empty()) {
     result.parameters["representation_pixels"] = 1;
     runPixelGrid(obs, request, s, start, result);

@@ -229,12 +229,17 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
   const double blur_scale = blur_weight_ / (static_cast<double>(N) * C),
                event_scale = options_.beta / (static_cast<double>(N) * V);
   const LogMapping& log = options_.log;
-  double blur_sum = 0, event_sum = 0;
   if (gradient) gradient->assign(x.size(), 0.0);
+  // Each thread's sums, added in thread order afterwards: the same figures on every run with the
+  // same thread count.
   const int threads = omp_get_max_threads();
   std::vector<std::vector<double>> partial(gradient ? static_cast<size_t>(threads) : 0);
-#pragma omp parallel reduction(+ : blur_sum, event_sum)
+  std::vector<double> blur_sums(static_cast<size_t>(threads), 0.0),
+      event_sums(static_cast<size_t>(threads), 0.0);
+#pragma omp parallel
   {
+    double& blur_sum = blur_sums[static_cast<size_t>(omp_get_thread_num())];
+    double& event_sum = event_sums[static_cast<size_t>(omp_get_thread_num())];
     std::vector<double>* g = nullptr;
     if (gradient) {
       auto& mine = partial[static_cast<size_t>(omp_get_thread_num())];
@@ -282,6 +287,11 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
       }
     }
   }
+  double blur_sum = 0, event_sum = 0;
+  for (int t = 0; t < threads; ++t) {
+    blur_sum += blur_sums[static_cast<size_t>(t)];
+    event_sum += event_sums[static_cast<size_t>(t)];
+  }
   if (gradient) {
     for (const auto& p : partial) {
       for (size_t i = 0; i < x.size(); ++i) (*gradient)[i] += p[i];
@@ -319,7 +329,8 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
 }
 
 int PixelGridProblem::solve(std::vector<double>& x, int iterations, Terms* terms,
-                            std::chrono::steady_clock::time_point deadline) const {
+                            std::chrono::steady_clock::time_point deadline,
+                            const std::function<void(int, double)>& progress) const {
   // L-BFGS (Nocedal and Wright, Numerical Optimization, algorithm 7.4) with a backtracking line
   // search on the Armijo condition.
   constexpr size_t kMemory = 8;
@@ -379,6 +390,7 @@ int PixelGridProblem::solve(std::vector<double>& x, int iterations, Terms* terms
     x.swap(x_new);
     g.swap(g_new);
     f = f_new;
+    if (progress) progress(done + 1, f);
     if (sy > 1e-300) {
       s_list.push_back(std::move(s));
       y_list.push_back(std::move(y));
@@ -412,12 +424,14 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
     for (int j = 0; j < 6; ++j)
       moved[i][static_cast<size_t>(j)] = poses[i] * expSE3(Vector6::Unit(j) * h);
   }
-  hessian = Eigen::MatrixXd::Zero(dim, dim);
-  gradient = Eigen::VectorXd::Zero(dim);
+  const int threads = omp_get_max_threads();
+  std::vector<Eigen::MatrixXd> hessians(static_cast<size_t>(threads),
+                                        Eigen::MatrixXd::Zero(dim, dim));
+  std::vector<Eigen::VectorXd> gradients(static_cast<size_t>(threads), Eigen::VectorXd::Zero(dim));
 #pragma omp parallel
   {
-    Eigen::MatrixXd Hl = Eigen::MatrixXd::Zero(dim, dim);
-    Eigen::VectorXd bl = Eigen::VectorXd::Zero(dim);
+    Eigen::MatrixXd& Hl = hessians[static_cast<size_t>(omp_get_thread_num())];
+    Eigen::VectorXd& bl = gradients[static_cast<size_t>(omp_get_thread_num())];
     std::vector<Matrix6> He(static_cast<size_t>(V), Matrix6::Zero());  // event term, per view
     std::vector<Vector6> be(static_cast<size_t>(V), Vector6::Zero());
     std::array<Eigen::VectorXd, 3> jb;  // d (mean of the views) / d knots, per channel
@@ -490,11 +504,12 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
         }
       }
     }
-#pragma omp critical
-    {
-      hessian += Hl;
-      gradient += bl;
-    }
+  }
+  hessian = Eigen::MatrixXd::Zero(dim, dim);
+  gradient = Eigen::VectorXd::Zero(dim);
+  for (int t = 0; t < threads; ++t) {  // in thread order, as in evaluate
+    hessian += hessians[static_cast<size_t>(t)];
+    gradient += gradients[static_cast<size_t>(t)];
   }
 }
 

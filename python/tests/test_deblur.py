@@ -36,7 +36,7 @@ def test_edi_is_sharper_than_blurry(obs):
 def test_tiny_benerf_with_progress(obs):
     seen = []
     mid = (obs.exposure[0] + obs.exposure[1]) // 2
-    result = evkit.deblur(obs, "benerf", times=[obs.exposure[0], mid], iterations=75, seed=3, threads=1, progress=lambda *a: seen.append(a))
+    result = evkit.deblur(obs, "benerf", times=[obs.exposure[0], mid], field="hash", iterations=75, seed=3, threads=1, progress=lambda *a: seen.append(a))
     assert [s[:2] for s in seen] == [(25, 75), (50, 75), (75, 75)]  # every 25 steps
     assert all(np.isfinite(s[2]) for s in seen)
     assert list(result.times) == [obs.exposure[0], mid]
@@ -53,7 +53,7 @@ def test_progress_exception_stops_the_run(obs):
         raise RuntimeError(f"stopped at {done}")
 
     with pytest.raises(RuntimeError, match="stopped at 25"):
-        evkit.deblur(obs, "benerf", iterations=100, progress=stop)
+        evkit.deblur(obs, "benerf", field="hash", iterations=100, progress=stop)
 
 
 def test_deblur_refuses(obs):
@@ -73,7 +73,7 @@ def test_ctrl_c_interrupts_a_long_run(tmp_path):
         obs = evkit.synth("planes", blur_px=10, width=64, height=48)
         print("ready", flush=True)
         try:
-            evkit.deblur(obs, "benerf", iterations=200000)
+            evkit.deblur(obs, "benerf", field="hash", iterations=200000)
         except KeyboardInterrupt:
             print("interrupted", flush=True)
             sys.exit(3)

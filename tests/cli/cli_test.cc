@@ -288,11 +288,12 @@ TEST(Cli, DeblurWithBenerfWritesFramesTrajectoryDisparityCurveAndCheckpoint) {
       "synth --preset planes --size 48x36 --blur-px 6 --exposure-us 20000 --out " + (dir / "obs"),
       dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
-  r = runEvkit(
-      "deblur " + (dir / "obs") +
-          " --method benerf --set budget=fast --set iterations=30 --set rays=128 --set samples=8 " +
-          "--set checkpoint=" + (dir / "ckpt") + " --latent 3 --out " + (dir / "nerf"),
-      dir);
+  r = runEvkit("deblur " + (dir / "obs") +
+                   " --method benerf --set field=hash --set budget=fast --set iterations=30 --set "
+                   "rays=128 " +
+                   "--set samples=8 " + "--set checkpoint=" + (dir / "ckpt") +
+                   " --latent 3 --out " + (dir / "nerf"),
+               dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.err.find("benerf: 3 frames"), std::string::npos) << r.err;
   for (const char* file :
@@ -309,11 +310,12 @@ TEST(Cli, DeblurWithBenerfWritesFramesTrajectoryDisparityCurveAndCheckpoint) {
   EXPECT_NE(summary.find("\"final_event_term\": "), std::string::npos) << summary;
   EXPECT_NE(summary.find("\"blur_weight\": 1"), std::string::npos) << summary;  // not a dim frame
   // Resuming from the finished checkpoint trains no further and gives the same frames.
-  r = runEvkit(
-      "deblur " + (dir / "obs") +
-          " --method benerf --set budget=fast --set iterations=30 --set rays=128 --set samples=8 " +
-          "--set resume=" + (dir / "ckpt") + " --latent 3 --out " + (dir / "again"),
-      dir);
+  r = runEvkit("deblur " + (dir / "obs") +
+                   " --method benerf --set field=hash --set budget=fast --set iterations=30 --set "
+                   "rays=128 " +
+                   "--set samples=8 " + "--set resume=" + (dir / "ckpt") + " --latent 3 --out " +
+                   (dir / "again"),
+               dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_EQ(test::readText(dir / "again/1600000000010000.png"),
             test::readText(dir / "nerf/1600000000010000.png"));
@@ -351,8 +353,8 @@ TEST(Cli, DeblurWithBenerfWritesFramesTrajectoryDisparityCurveAndCheckpoint) {
   expectUsageError("dim_frame=2", "dim_frame=2 must be in [0, 1]");
   expectUsageError("prefit=-5", "prefit=-5");
   std::ofstream(dir / "bad.ckpt") << "EVKBNRF1 not really";
-  r = runEvkit("deblur " + (dir / "obs") + " --method benerf --set resume=" + (dir / "bad.ckpt") +
-                   " --out " + (dir / "x"),
+  r = runEvkit("deblur " + (dir / "obs") + " --method benerf --set field=hash --set resume=" +
+                   (dir / "bad.ckpt") + " --out " + (dir / "x"),
                dir);
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.err.find("bad.ckpt"), std::string::npos) << r.err;
@@ -386,7 +388,7 @@ TEST(Cli, BenchKeepsFinishedRunsWhenALaterOneFailsAndResumes) {
   ScratchDir dir;
   const std::string common =
       "bench --suite hard --scenes hard_blur2,hard_noevents --size 48x32 --budgets 12 --threads 1 "
-      "--out " +
+      "--set benerf.field=hash --out " +
       (dir / "b");
   // BeNeRF cannot start (its checkpoint is missing): its rows fail, blurry's and EDI's are kept.
   RunResult r = runEvkit(
@@ -435,7 +437,7 @@ TEST(Cli, BenchWithUnknownContrastHidesTheThresholdsFromEveryMethod) {
   ScratchDir dir;
   const std::string common =
       "bench --suite all --scenes hard_blur2,planes_blur15 --size 48x32 --methods edi,benerf "
-      "--budgets 12 --threads 1 --data " +
+      "--budgets 12 --threads 1 --set benerf.field=hash --data " +
       (dir / "suite");
   const RunResult r = runEvkit(common + " --unknown-contrast --out " + (dir / "unknown"), dir);
   ASSERT_EQ(r.exit_code, 0) << r.err;

@@ -105,7 +105,7 @@ TEST(Settings, ChoicesRoundTripThroughTheirNames) {
   EXPECT_EQ(o.event_form, BenerfOptions::EventForm::kDirect);
   EXPECT_NE(errorOf([] {
               benerfOptions({{"field", "voxels"}});
-            }).find("field must be hash or mlp, not 'voxels'"),
+            }).find("field must be hash, mlp or pixels, not 'voxels'"),
             std::string::npos);
 }
 

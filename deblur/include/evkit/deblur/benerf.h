@@ -52,7 +52,7 @@ struct BenerfOptions {
   // (motionFromLatentFrames), the image found by L-BFGS on BeNeRF's two terms with the registered
   // trajectory. Where the registration gives no motion, the hash field.
   enum class FieldKind { kHash, kMlp, kPixels };
-  FieldKind field = FieldKind::kHash;
+  FieldKind field = FieldKind::kPixels;
   int cells = 2;
   nerf::HashFieldConfig
       hash;  // levels, features, table; finest resolution adapted to the image when 0

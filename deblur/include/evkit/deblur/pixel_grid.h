@@ -4,6 +4,7 @@
 
 #include <Eigen/Core>
 #include <chrono>
+#include <functional>
 #include <opencv2/core.hpp>
 #include <vector>
 
@@ -54,10 +55,12 @@ class PixelGridProblem {
   // The loss (weighted blur term + weighted event term) and, optionally, its gradient.
   double evaluate(const std::vector<double>& x, std::vector<double>* gradient,
                   Terms* terms = nullptr) const;
-  // L-BFGS from x until `iterations` or the deadline; returns the iterations done.
-  int solve(std::vector<double>& x, int iterations, Terms* terms = nullptr,
-            std::chrono::steady_clock::time_point deadline =
-                std::chrono::steady_clock::time_point::max()) const;
+  // L-BFGS from x until `iterations` or the deadline (or until no step lowers the loss); returns
+  // the iterations done. progress(iteration, loss) after each.
+  int solve(
+      std::vector<double>& x, int iterations, Terms* terms = nullptr,
+      std::chrono::steady_clock::time_point deadline = std::chrono::steady_clock::time_point::max(),
+      const std::function<void(int, double)>& progress = {}) const;
   // Levenberg-Marquardt steps on the motion with the image u fixed (the event term's residuals;
   // a step is taken when the whole loss falls); returns the loss.
   double refineMotion(const std::vector<double>& u, int iterations);
