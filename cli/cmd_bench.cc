@@ -59,7 +59,8 @@ int runBench(const Args& args) {
   opts.add_options()("out", po::value<std::string>()->required(),
                      "output folder: results.csv, results.md, speed_vs_error.png, runs/")(
       "suite", po::value<std::string>()->default_value("standard"),
-      "standard (10 scenes), noisy (the same 10 with DAVIS-like event noise), hard (9 hard cases) "
+      "standard (10 scenes), noisy (the same 10 with DAVIS-like event noise), hard (9 hard cases), "
+      "natural (24: photographs at several depths) "
       "or all")("scenes", po::value<std::string>(),
                 "only these entries of the suite (comma-separated names)")(
       "data", po::value<std::string>(),
@@ -81,10 +82,11 @@ int runBench(const Args& args) {
                                             "run again what OUT/results.csv already holds");
   po::positional_options_description pos;
   po::variables_map vm;
-  if (!parseArgs(args,
-                 "usage: evkit bench [--suite standard|noisy|hard|all] [--methods ...] [--budgets "
-                 "...] --out DIR",
-                 opts, pos, vm)) {
+  if (!parseArgs(
+          args,
+          "usage: evkit bench [--suite standard|noisy|hard|natural|all] [--methods ...] [--budgets "
+          "...] --out DIR",
+          opts, pos, vm)) {
     return kExitOk;
   }
   const auto [width, height] = parseImageSize(vm["size"].as<std::string>(), "size", 16, 4096);
