@@ -624,10 +624,9 @@ namespace {
 // suite's size (16 px of blur), with half of `fast`'s steps (100 L-BFGS steps), against EDI with
 // the true thresholds: clearly sharper on a photograph at one depth and on the Middlebury
 // motorcycle over its real depth (measured +2.3 and +1.8 dB); the blur length from the motion
-// within 20% of the truth; the
-// representation reported. (Not asserted: at this size four layers with occlusion boundaries are
-// level with EDI and the rocket before a backdrop 1.7 dB below it; at the suite's size they are
-// 0.9 and 0.6 dB above it.)
+// within 20% of the truth; the representation reported. (Not asserted: at this size four layers
+// with occlusion boundaries are level with EDI and the rocket before a backdrop 1.7 dB below it; at
+// the suite's size they are 0.9 and 0.6 dB above it.)
 TEST(Benerf, PixelGridIsSharperThanEdiOnNaturalScenes) {
   for (const char* scene : {"coffee_plane", "motorcycle"}) {
     const auto natural = naturalObservation(scene, 1);
