@@ -9,6 +9,7 @@
 #include "benerf_common.h"
 #include "evkit/base/error.h"
 #include "evkit/deblur/benerf.h"
+#include "evkit/deblur/pixel_grid.h"
 #include "evkit/nerf/ray_batch.h"
 
 namespace evkit {
@@ -82,15 +83,7 @@ BenerfProblem<T>::BenerfProblem(const Observation& obs, const BenerfOptions& opt
   // its β grows with them to keep the same weight (the direct term is a plain mean and does not).
   beta_ = options.beta >= 0 ? options.beta
                             : (normalised_ ? 2.0 * std::max(1, options.event_rays) / 1024.0 : 0.1);
-  // The blur term is in linear intensity and the event term in log intensity, so their balance
-  // shifts with the frame's brightness m as m^2: below options.dim_frame the blur term is weighed
-  // as if the frame were that bright.
-  const cv::Scalar mean = cv::mean(blurry_);
-  double brightness = 0;
-  for (int c = 0; c < channels_; ++c) brightness += mean[c] / channels_;
-  blur_weight_ = brightness < options.dim_frame
-                     ? std::pow(options.dim_frame / std::max(brightness, 1e-3), 2)
-                     : 1.0;
+  blur_weight_ = dimFrameWeight(blurry_, options.dim_frame);  // pixel_grid.h
   // Events of the exposure by pixel, with the accumulated level after each.
   events_ = PixelEventIndex(
       obs.events.sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us + 1),

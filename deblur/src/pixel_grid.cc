@@ -56,6 +56,13 @@ void sampleBackward(double* g, int width, int C, const Taps& t, const double* d)
 
 }  // namespace
 
+double dimFrameWeight(const cv::Mat& blurry, double dim_frame) {
+  const cv::Scalar mean = cv::mean(blurry);
+  double brightness = 0;
+  for (int c = 0; c < blurry.channels(); ++c) brightness += mean[c] / blurry.channels();
+  return brightness < dim_frame ? std::pow(dim_frame / std::max(brightness, 1e-3), 2) : 1.0;
+}
+
 PixelGridProblem::PixelGridProblem(const Observation& obs, const PinholeCamera& camera,
                                    const Trajectory& motion, const cv::Mat& inverse_depth,
                                    const Contrast& contrast, const PixelGridOptions& options)
@@ -120,12 +127,7 @@ PixelGridProblem::PixelGridProblem(const Observation& obs, const PinholeCamera& 
 
   // The blurry frame, and the events accumulated from mid-exposure to each view's time.
   obs.blurry.image.convertTo(blurry_, CV_MAKETYPE(CV_32F, channels_));
-  const cv::Scalar mean = cv::mean(blurry_);
-  double brightness = 0;
-  for (int c = 0; c < channels_; ++c) brightness += mean[c] / channels_;
-  blur_weight_ = brightness < options_.dim_frame
-                     ? std::pow(options_.dim_frame / std::max(brightness, 1e-3), 2)
-                     : 1.0;
+  blur_weight_ = dimFrameWeight(blurry_, options_.dim_frame);
   change_.assign(static_cast<size_t>(views_) * directions_.size(), 0.0f);
   const EventSpan ev = obs.events.sliceTime(t0, t1 + 1);
   for (size_t e = 0; e < ev.size(); ++e) {

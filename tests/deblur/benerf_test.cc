@@ -475,6 +475,32 @@ class OneThread {
   int saved_;
 };
 
+// A 24 x 18 scene for the pixel grid's gradient checks (grey, or colour with unequal channels) and
+// a motion over its exposure with rotation and translation.
+struct GridScene {
+  Observation obs;
+  nerf::PinholeCamera camera;
+  Trajectory motion;
+};
+
+GridScene gridScene(bool colour) {
+  Observation obs = makeObservation(24, 18, 4, 3);
+  if (colour) {
+    cv::Mat bgr;
+    cv::cvtColor(obs.blurry.image, bgr, cv::COLOR_GRAY2BGR);
+    cv::multiply(bgr, cv::Scalar(0.8, 1.0, 1.2), obs.blurry.image);
+  }
+  const int64_t t0 = obs.blurry.exposure_start_us, t1 = obs.blurry.exposure_end_us;
+  std::vector<StampedPose> poses;
+  for (int k = 0; k <= 8; ++k) {
+    const double s = k / 8.0 - 0.5;
+    poses.push_back({t0 + (t1 - t0) * k / 8,
+                     SE3(expSO3(Vector3(0.02, -0.03, 0.01) * s), Vector3(0.05, 0.02, 0.01) * s)});
+  }
+  const nerf::PinholeCamera camera = obs.camera.withSize(24, 18);
+  return {std::move(obs), camera, fitTrajectory(TrajectoryKind::kCubicSE3, 4, t0, t1, poses)};
+}
+
 // The pixel grid's loss against central differences in double, on a scene that moves with
 // rotation and translation over a slanted inverse depth, with two cells per pixel, grey and colour,
 // under both log mappings: every checked cell's gradient (inside the image, in the margin, and
@@ -484,21 +510,8 @@ TEST(PixelGrid, GradientsMatchCentralDifferences) {
   for (const bool colour : {false, true}) {
     for (const bool lin_log : {false, true}) {
       SCOPED_TRACE(std::string(colour ? "colour" : "grey") + (lin_log ? ", lin-log" : ", log"));
-      Observation obs = makeObservation(24, 18, 4, 3);
-      if (colour) {
-        cv::Mat bgr;
-        cv::cvtColor(obs.blurry.image, bgr, cv::COLOR_GRAY2BGR);
-        cv::multiply(bgr, cv::Scalar(0.8, 1.0, 1.2), obs.blurry.image);
-      }
-      const nerf::PinholeCamera camera = obs.camera.withSize(24, 18);
-      const int64_t t0 = obs.blurry.exposure_start_us, t1 = obs.blurry.exposure_end_us;
-      std::vector<StampedPose> poses;
-      for (int k = 0; k <= 8; ++k) {
-        const double s = k / 8.0 - 0.5;
-        poses.push_back({t0 + (t1 - t0) * k / 8, SE3(expSO3(Vector3(0.02, -0.03, 0.01) * s),
-                                                     Vector3(0.05, 0.02, 0.01) * s)});
-      }
-      const Trajectory motion = fitTrajectory(TrajectoryKind::kCubicSE3, 4, t0, t1, poses);
+      const GridScene scene = gridScene(colour);
+      const Observation& obs = scene.obs;
       cv::Mat inverse_depth(18, 24, CV_32F);
       for (int y = 0; y < 18; ++y) {
         for (int x = 0; x < 24; ++x) inverse_depth.at<float>(y, x) = 0.3f + 0.01f * (x + y);
@@ -507,7 +520,8 @@ TEST(PixelGrid, GradientsMatchCentralDifferences) {
       o.beta = 0.3;
       o.subdivision = 2;
       o.log.lin_log = lin_log;
-      const PixelGridProblem problem(obs, camera, motion, inverse_depth, Contrast{0.2, 0.25}, o);
+      const PixelGridProblem problem(obs, scene.camera, scene.motion, inverse_depth,
+                                     Contrast{0.2, 0.25}, o);
       ASSERT_GT(problem.margin(), 0);
       std::vector<double> x = problem.start(obs.blurry.image);
       std::mt19937_64 rng(7);
@@ -561,25 +575,12 @@ TEST(PixelGrid, MotionGradientMatchesCentralDifferences) {
   const OneThread one_thread;  // small parallel regions only wait on each other
   for (const bool colour : {false, true}) {
     SCOPED_TRACE(colour ? "colour" : "grey");
-    Observation obs = makeObservation(24, 18, 4, 3);
-    if (colour) {
-      cv::Mat bgr;
-      cv::cvtColor(obs.blurry.image, bgr, cv::COLOR_GRAY2BGR);
-      cv::multiply(bgr, cv::Scalar(0.8, 1.0, 1.2), obs.blurry.image);
-    }
-    const nerf::PinholeCamera camera = obs.camera.withSize(24, 18);
-    const int64_t t0 = obs.blurry.exposure_start_us, t1 = obs.blurry.exposure_end_us;
-    std::vector<StampedPose> poses;
-    for (int k = 0; k <= 8; ++k) {
-      const double s = k / 8.0 - 0.5;
-      poses.push_back({t0 + (t1 - t0) * k / 8,
-                       SE3(expSO3(Vector3(0.02, -0.03, 0.01) * s), Vector3(0.05, 0.02, 0.01) * s)});
-    }
+    const GridScene scene = gridScene(colour);
+    const Observation& obs = scene.obs;
     PixelGridOptions o;
     o.beta = 0.3;
     o.subdivision = 2;
-    PixelGridProblem problem(obs, camera,
-                             fitTrajectory(TrajectoryKind::kCubicSE3, 4, t0, t1, poses),
+    PixelGridProblem problem(obs, scene.camera, scene.motion,
                              cv::Mat(18, 24, CV_32F, cv::Scalar(0.4)), Contrast{0.2, 0.25}, o);
     std::vector<double> u = problem.start(obs.blurry.image);
     std::mt19937_64 rng(11);

@@ -25,6 +25,11 @@ struct PixelGridOptions {
   LogMapping log;
 };
 
+// The blur term is in linear intensity and the event term in log intensity, so their balance
+// shifts with the frame's mean brightness m as m^2: below dim_frame the blur term is weighed as if
+// the frame were that bright, (dim_frame / m)^2 (BenerfOptions::dim_frame); else 1.
+double dimFrameWeight(const cv::Mat& blurry, double dim_frame);
+
 // A position on the canvas: its bilinear stencil's top-left cell and the offsets.
 struct CanvasTaps {
   int index;
