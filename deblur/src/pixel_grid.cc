@@ -56,6 +56,17 @@ void sampleBackward(double* g, int width, int C, const Taps& t, const double* d)
 
 }  // namespace
 
+double PixelGridProblem::eventPenalty(double r, double* weight) const {
+  const double d = options_.event_robust;
+  if (!(d > 0)) {
+    *weight = 1;
+    return r * r;
+  }
+  const double root = std::sqrt(1 + (r / d) * (r / d));
+  *weight = 1 / root;
+  return 2 * d * d * (root - 1);
+}
+
 double dimFrameWeight(const cv::Mat& blurry, double dim_frame) {
   const cv::Scalar mean = cv::mean(blurry);
   double brightness = 0;
@@ -266,9 +277,10 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
           for (int c = 0; c < C; ++c) sum[c] += out[c];
           const double grey = std::max(0.0, nerf::greyOf(out, C));
           const double r = log.logOf(grey) - mid_log - change_[static_cast<size_t>(k) * N + pixel];
-          event_sum += r * r;
-          d_grey[static_cast<size_t>(k)] = 2 * event_scale * r * log.logSlope(grey);
-          d_mid_log -= 2 * event_scale * r;
+          double weight;
+          event_sum += eventPenalty(r, &weight);
+          d_grey[static_cast<size_t>(k)] = 2 * event_scale * weight * r * log.logSlope(grey);
+          d_mid_log -= 2 * event_scale * weight * r;
         }
         double d_sum[3] = {0, 0, 0};
         for (int c = 0; c < C; ++c) {
@@ -483,8 +495,10 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
           const Vector6 g =
               (slope * nerf::greyOf(du, C) * dq.row(0) + slope * nerf::greyOf(dv, C) * dq.row(1))
                   .transpose();
-          He[ki] += event_scale * g * g.transpose();
-          be[ki] += event_scale * g * r;
+          double weight;
+          eventPenalty(r, &weight);  // iteratively reweighted: the penalty's gradient is 2 w r
+          He[ki] += event_scale * weight * g * g.transpose();
+          be[ki] += event_scale * weight * g * r;
         }
         for (int c = 0; c < C; ++c) {
           const double r = sum[c] / V - blurry_.ptr<float>(y)[px * C + c];

@@ -520,6 +520,7 @@ TEST(PixelGrid, GradientsMatchCentralDifferences) {
       o.beta = 0.3;
       o.subdivision = 2;
       o.log.lin_log = lin_log;
+      o.event_robust = lin_log ? 0.0 : 0.1;  // the squared and the pseudo-Huber penalties
       const PixelGridProblem problem(obs, scene.camera, scene.motion, inverse_depth,
                                      Contrast{0.2, 0.25}, o);
       ASSERT_GT(problem.margin(), 0);
@@ -580,6 +581,7 @@ TEST(PixelGrid, MotionGradientMatchesCentralDifferences) {
     PixelGridOptions o;
     o.beta = 0.3;
     o.subdivision = 2;
+    o.event_robust = colour ? 0.1 : 0.0;  // the pseudo-Huber and the squared penalties
     PixelGridProblem problem(obs, scene.camera, scene.motion,
                              cv::Mat(18, 24, CV_32F, cv::Scalar(0.4)), Contrast{0.2, 0.25}, o);
     std::vector<double> u = problem.start(obs.blurry.image);

@@ -21,6 +21,9 @@ struct PixelGridOptions {
   int min_views = 8, max_views = 64;
   int subdivision = 1;       // cells per pixel along each axis
   double smoothness = 1e-2;  // weight of the squared log differences between neighbouring cells
+  // The event term's penalty: r^2 for 0, else the pseudo-Huber 2 d^2 (sqrt(1 + (r / d)^2) - 1),
+  // r^2 near 0 and linear beyond d, so that a noise event's whole threshold step weighs less.
+  double event_robust = 0;
   int motion_steps = 6;      // Levenberg-Marquardt steps on the motion before the image
   LogMapping log;
 };
@@ -86,7 +89,9 @@ class PixelGridProblem {
   // intensities x (the weighted sum's half gradient and its approximate Hessian).
   void normalEquations(const std::vector<double>& x, int stride, Eigen::MatrixXd& hessian,
                        Eigen::VectorXd& gradient) const;
-  double intensityOf(double u, double* slope) const;  // from a log value, and dI/du
+  double intensityOf(double u, double* slope) const;
+  // The event term's penalty of a residual and its weight w (the penalty's derivative is 2 w r).
+  double eventPenalty(double r, double* weight) const;  // from a log value, and dI/du
   // A mid-image coordinate on the canvas's cell grid.
   double cellCoordinate(double image) const { return (image + margin_) * options_.subdivision; }
 
