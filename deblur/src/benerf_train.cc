@@ -407,12 +407,6 @@ void runPixelGrid(const Observation& obs, const DeblurRequest& request, const St
   po.dim_frame = o.dim_frame;
   po.log = o.log;
   po.subdivision = o.cells;
-  // A noise event puts a whole threshold into every later view's accumulated events at its pixel,
-  // where the quantisation of real changes stays within half of one: the event term is quadratic
-  // up to a threshold and linear beyond it (measured at `fast`: text_blur40_noisy 28.5 -> 31.5 dB,
-  // planes_blur40_noisy 28.9 -> 30.4, rgbd_blur15_noisy 32.6 -> 32.1; half a threshold lost 1.7
-  // dB on the last).
-  po.event_robust = 0.5 * (contrast.on + contrast.off);
   PixelGridProblem problem(obs, camera, motion, inverse_depth, contrast, po);
   EdiOptions edi_options;
   edi_options.use_observation_contrast = false;
