@@ -201,6 +201,15 @@ double PixelGridProblem::intensityOf(double u, double* slope) const {
   return (u + std::log(255.0)) * *slope;
 }
 
+std::vector<double> PixelGridProblem::intensities(const std::vector<double>& u,
+                                                  std::vector<double>* slopes) const {
+  std::vector<double> x(u.size());
+  if (slopes) slopes->resize(u.size());
+  double slope;
+  for (size_t i = 0; i < u.size(); ++i) x[i] = intensityOf(u[i], slopes ? &(*slopes)[i] : &slope);
+  return x;
+}
+
 std::vector<double> PixelGridProblem::start(const cv::Mat& mid_image) const {
   cv::Mat f;
   mid_image.convertTo(f, CV_MAKETYPE(CV_64F, channels_));
@@ -235,8 +244,8 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
                                   Terms* terms) const {
   // The unknowns are the cells' log intensities (the event model's mapping); the views sample the
   // cells' intensities bilinearly (linear light).
-  std::vector<double> x(u.size()), slope(u.size());
-  for (size_t i = 0; i < u.size(); ++i) x[i] = intensityOf(u[i], &slope[i]);
+  std::vector<double> slope;
+  const std::vector<double> x = intensities(u, &slope);
   const int W = camera_.width, H = camera_.height, C = channels_, V = views_;
   const size_t N = directions_.size();
   const double blur_scale = blur_weight_ / (static_cast<double>(N) * C),
@@ -530,11 +539,7 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
 }
 
 Eigen::VectorXd PixelGridProblem::motionGradient(const std::vector<double>& u, int stride) const {
-  std::vector<double> x(u.size());
-  for (size_t i = 0; i < u.size(); ++i) {
-    double slope;
-    x[i] = intensityOf(u[i], &slope);
-  }
+  const std::vector<double> x = intensities(u);
   Eigen::MatrixXd hessian;
   Eigen::VectorXd gradient;
   normalEquations(x, stride, hessian, gradient);
@@ -550,11 +555,7 @@ double PixelGridProblem::refineMotion(const std::vector<double>& u, int iteratio
   // Levenberg-Marquardt on the knots with the image fixed, on every other row and column. Called
   // before the image is solved for (EDI's frame), which has not yet taken up the motion's errors
   // into its texture.
-  std::vector<double> x(u.size());
-  for (size_t i = 0; i < u.size(); ++i) {
-    double slope;
-    x[i] = intensityOf(u[i], &slope);
-  }
+  const std::vector<double> x = intensities(u);
   const Eigen::Index dim = 6 * static_cast<Eigen::Index>(motion_.knots().size());
   double loss = evaluate(u, nullptr);
   double damping = 1e-3;
@@ -594,11 +595,7 @@ double PixelGridProblem::refineMotion(const std::vector<double>& u, int iteratio
 }
 
 cv::Mat PixelGridProblem::render(const std::vector<double>& u, int64_t t_us) const {
-  std::vector<double> x(u.size());
-  for (size_t i = 0; i < u.size(); ++i) {
-    double slope;
-    x[i] = intensityOf(u[i], &slope);
-  }
+  const std::vector<double> x = intensities(u);
   const int W = camera_.width, H = camera_.height, C = channels_;
   cv::Mat out(H, W, CV_MAKETYPE(CV_32F, C));
   const SE3 pose = motion_.poseAt(t_us);

@@ -26,7 +26,7 @@ struct PixelGridOptions {
   // threshold step weighs less. Not used by BeNeRF: with d = C at `fast` (BENCHMARKS.md) the noisy
   // suite gained 0.4 dB and the noiseless standard suite lost 1.6.
   double event_robust = 0;
-  int motion_steps = 6;      // Levenberg-Marquardt steps on the motion before the image
+  int motion_steps = 6;  // Levenberg-Marquardt steps on the motion before the image
   LogMapping log;
 };
 
@@ -92,6 +92,9 @@ class PixelGridProblem {
   void normalEquations(const std::vector<double>& x, int stride, Eigen::MatrixXd& hessian,
                        Eigen::VectorXd& gradient) const;
   double intensityOf(double u, double* slope) const;
+  // Every cell's intensity from its log value, and optionally each dI/du.
+  std::vector<double> intensities(const std::vector<double>& u,
+                                  std::vector<double>* slopes = nullptr) const;
   // The event term's penalty of a residual and its weight w (the penalty's derivative is 2 w r).
   double eventPenalty(double r, double* weight) const;  // from a log value, and dI/du
   // A mid-image coordinate on the canvas's cell grid.
