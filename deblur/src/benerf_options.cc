@@ -166,6 +166,9 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
         .integer("resolution", &O::finest_resolution, {0},
                  "the finest grid level's cells (0: the image's larger side)")
         .integer("cells", &O::cells, {1, 4}, "the pixel grid's cells per pixel along each axis")
+        .number("support_px", &O::support_px, {0},
+                "the pixel grid keeps events with a neighbour's within this many pixels of motion "
+                "(0: all)")
         .number("depth_scale", &O::depth_scale, {0, 1, true}, "the field sees NDC depth times this")
         .number("coarse_to_fine", &O::coarse_to_fine, unit,
                 "fraction of the steps over which the field's bands open")

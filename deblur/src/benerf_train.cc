@@ -14,6 +14,7 @@
 #include "evkit/deblur/edi.h"
 #include "evkit/deblur/metrics.h"
 #include "evkit/deblur/pixel_grid.h"
+#include "evkit/events/filters.h"
 #include "evkit/nerf/adam.h"
 #include "evkit/spline/fit.h"
 
@@ -374,18 +375,36 @@ void summarise(BenerfProblem<float>& problem, const BenerfOptions& o, int iterat
   if (last_blur > 0) result.parameters["blur_fit_psnr"] = -10 * std::log10(last_blur);
 }
 
-// The pixel-grid scene (benerf_pixels.cc): the registered motion, or the events' rotation where the
+// The observation with only the events that a neighbouring pixel supports within the time the
+// image takes to move `support_px` pixels (by the motion), and the share dropped.
+Observation supportedEvents(const Observation& obs, double support_px, double blur_px,
+                            DeblurResult& result) {
+  Observation out;
+  out.blurry = obs.blurry;
+  out.camera = obs.camera;
+  out.contrast = obs.contrast;
+  const int64_t exposure = obs.blurry.exposure_end_us - obs.blurry.exposure_start_us;
+  const auto window = static_cast<int64_t>(support_px * exposure / std::max(blur_px, 1.0));
+  int64_t dropped = 0;
+  out.events = filterUnsupported(obs.events.view(), window, &dropped);
+  result.parameters["events_unsupported"] =
+      obs.events.empty() ? 0.0 : static_cast<double>(dropped) / obs.events.size();
+  return out;
+}
+
+// The pixel-grid scene (pixel_grid.cc): the registered motion, or the events' rotation where the
 // registration gave none, and the image found from EDI's mid-exposure frame.
-void runPixelGrid(const Observation& obs, const DeblurRequest& request, const Start& s,
+void runPixelGrid(const Observation& given, const DeblurRequest& request, const Start& s,
                   Clock::time_point start, DeblurResult& result) {
   const BenerfOptions& o = s.options;
-  const PinholeCamera camera = obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows);
-  const int64_t t0 = obs.blurry.exposure_start_us, t1 = obs.blurry.exposure_end_us;
+  const PinholeCamera camera =
+      given.camera.withSize(given.blurry.image.cols, given.blurry.image.rows);
+  const int64_t t0 = given.blurry.exposure_start_us, t1 = given.blurry.exposure_end_us;
   std::vector<StampedPose> poses = s.motion.poses;
   cv::Mat inverse_depth = s.motion.inverse_depth;
   result.parameters["motion_from_frames"] = poses.empty() ? 0 : 1;
   if (poses.empty()) {
-    const Vector3 omega = rotationFromEvents(obs, camera, s.blur_px);
+    const Vector3 omega = rotationFromEvents(given, camera, s.blur_px);
     for (int k = 0; k <= 20; ++k) {
       poses.push_back(
           {t0 + (t1 - t0) * k / 20, SE3(expSO3((k / 20.0 - 0.5) * omega), Vector3::Zero())});
@@ -394,6 +413,13 @@ void runPixelGrid(const Observation& obs, const DeblurRequest& request, const St
   }
   const Trajectory motion = fitTrajectory(
       o.trajectory, std::max(o.knots, Trajectory::minimumKnots(o.trajectory)), t0, t1, poses);
+  const Observation filtered =
+      o.support_px > 0
+          ? supportedEvents(
+                given, o.support_px,
+                PixelGridProblem::longestImagePath(camera, motion, inverse_depth, t0, t1), result)
+          : Observation{};
+  const Observation& obs = o.support_px > 0 ? filtered : given;
   Contrast contrast;
   if (o.contrast) {
     contrast = *o.contrast;
@@ -407,6 +433,7 @@ void runPixelGrid(const Observation& obs, const DeblurRequest& request, const St
   po.dim_frame = o.dim_frame;
   po.log = o.log;
   po.subdivision = o.cells;
+  po.event_window = o.alpha;
   PixelGridProblem problem(obs, camera, motion, inverse_depth, contrast, po);
   EdiOptions edi_options;
   edi_options.use_observation_contrast = false;

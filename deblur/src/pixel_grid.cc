@@ -3,7 +3,7 @@
 // between EDI's latent frames. A view at time t sees a cell through the camera's pose at t, so the
 // virtual views are reprojections of one image. The image is found by L-BFGS on BeNeRF's two terms:
 // the views' mean against the blurry frame (linear) and each view's log change from mid-exposure
-// against the events accumulated since then (the direct form, C-weighted).
+// and over short windows against the events in between (the direct form, C-weighted).
 
 #include "evkit/deblur/pixel_grid.h"
 
@@ -54,7 +54,46 @@ void sampleBackward(double* g, int width, int C, const Taps& t, const double* d)
   }
 }
 
+// Where pixel (x, y), ray direction d in the mid-exposure camera, is seen by the camera at `pose`:
+// its point at the mid frame's inverse depth there, then once more at the inverse depth where that
+// lands (the view and the mid frame see nearly the same point); rho_used: the second.
+Eigen::Vector2d reproject(const PinholeCamera& camera, const cv::Mat& inverse_depth, int x, int y,
+                          const Vector3& d, const SE3& pose, double* rho_used) {
+  const Vector3 Rd = pose.rotation().toRotationMatrix() * d;
+  const auto rhoAt = [&](double u, double v) {
+    const int col = std::clamp(static_cast<int>(std::lround(u)), 0, camera.width - 1),
+              row = std::clamp(static_cast<int>(std::lround(v)), 0, camera.height - 1);
+    return inverse_depth.empty() ? 0.0 : static_cast<double>(inverse_depth.at<float>(row, col));
+  };
+  double rho = rhoAt(x, y);
+  const Eigen::Vector2d q = nerf::projectPoint(camera, Rd + rho * pose.translation());
+  rho = rhoAt(q.x(), q.y());
+  if (rho_used) *rho_used = rho;
+  return nerf::projectPoint(camera, Rd + rho * pose.translation());
+}
+
 }  // namespace
+
+double PixelGridProblem::longestImagePath(const PinholeCamera& camera, const Trajectory& motion,
+                                          const cv::Mat& inverse_depth, int64_t t0, int64_t t1) {
+  double longest = 0;
+  const int W = camera.width, H = camera.height;
+  for (int y = 0; y < H; y += std::max(1, H / 16)) {
+    for (int x = 0; x < W; x += std::max(1, W / 16)) {
+      const Vector3 d = nerf::pixelDirection(camera, x, y);
+      double path = 0;
+      Eigen::Vector2d last = reproject(camera, inverse_depth, x, y, d, motion.poseAt(t0), nullptr);
+      for (int k = 1; k <= 32; ++k) {
+        const Eigen::Vector2d q = reproject(camera, inverse_depth, x, y, d,
+                                            motion.poseAt(t0 + (t1 - t0) * k / 32), nullptr);
+        path += (q - last).norm();
+        last = q;
+      }
+      longest = std::max(longest, path);
+    }
+  }
+  return longest;
+}
 
 double PixelGridProblem::eventPenalty(double r, double* weight) const {
   const double d = options_.event_robust;
@@ -99,19 +138,7 @@ PixelGridProblem::PixelGridProblem(const Observation& obs, const PinholeCamera& 
 
   // The views: as many as the longest image path over the exposure has pixels (the blur integral
   // by the midpoint rule at about one view per pixel of motion), within the options' bounds.
-  blur_px_ = 0;
-  for (int y = 0; y < H; y += std::max(1, H / 16)) {
-    for (int x = 0; x < W; x += std::max(1, W / 16)) {
-      double path = 0;
-      Eigen::Vector2d last = cellOf(x, y, motion_.poseAt(t0));
-      for (int k = 1; k <= 32; ++k) {
-        const Eigen::Vector2d q = cellOf(x, y, motion_.poseAt(t0 + (t1 - t0) * k / 32));
-        path += (q - last).norm();
-        last = q;
-      }
-      blur_px_ = std::max(blur_px_, path);
-    }
-  }
+  blur_px_ = longestImagePath(camera_, motion_, inverse_depth_, t0, t1);
   views_ =
       std::clamp(static_cast<int>(std::ceil(blur_px_)) + 1, options_.min_views, options_.max_views);
   for (int k = 0; k < views_; ++k) {
@@ -175,18 +202,8 @@ void PixelGridProblem::buildTaps() {
 }
 
 Eigen::Vector2d PixelGridProblem::cellOf(int x, int y, const SE3& pose, double* rho_used) const {
-  // The pixel's point at the mid frame's inverse depth there, then once more at the inverse depth
-  // where that lands (the view and the mid frame see nearly the same point).
-  const Vector3& d = directions_[static_cast<size_t>(y) * camera_.width + x];
-  const Matrix3 R = pose.rotation().toRotationMatrix();
-  const Vector3 Rd = R * d;
-  double rho = inverse_depth_.at<float>(y, x);
-  Eigen::Vector2d q = nerf::projectPoint(camera_, Rd + rho * pose.translation());
-  const int qx = std::clamp(static_cast<int>(std::lround(q.x())), 0, camera_.width - 1),
-            qy = std::clamp(static_cast<int>(std::lround(q.y())), 0, camera_.height - 1);
-  rho = inverse_depth_.at<float>(qy, qx);
-  if (rho_used) *rho_used = rho;
-  return nerf::projectPoint(camera_, Rd + rho * pose.translation());
+  return reproject(camera_, inverse_depth_, x, y,
+                   directions_[static_cast<size_t>(y) * camera_.width + x], pose, rho_used);
 }
 
 double PixelGridProblem::intensityOf(double u, double* slope) const {
@@ -248,8 +265,10 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
   const std::vector<double> x = intensities(u, &slope);
   const int W = camera_.width, H = camera_.height, C = channels_, V = views_;
   const size_t N = directions_.size();
+  const int lag = eventLag();
   const double blur_scale = blur_weight_ / (static_cast<double>(N) * C),
-               event_scale = options_.beta / (static_cast<double>(N) * V);
+               event_scale = options_.beta / (static_cast<double>(N) * V),
+               window_scale = lag > 0 ? options_.beta / (static_cast<double>(N) * (V - lag)) : 0;
   const LogMapping& log = options_.log;
   if (gradient) gradient->assign(x.size(), 0.0);
   // Each thread's sums, added in thread order afterwards: the same figures on every run with the
@@ -268,7 +287,8 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
       mine.assign(x.size(), 0.0);
       g = &mine;
     }
-    std::vector<double> colour(static_cast<size_t>(V) * C), d_grey(static_cast<size_t>(V));
+    std::vector<double> colour(static_cast<size_t>(V) * C), d_grey(static_cast<size_t>(V)),
+        logs(static_cast<size_t>(V)), greys(static_cast<size_t>(V));
 #pragma omp for schedule(static)
     for (int y = 0; y < H; ++y) {
       for (int px = 0; px < W; ++px) {
@@ -281,16 +301,34 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
         double d_mid_log = 0;
         double sum[3] = {0, 0, 0};
         for (int k = 0; k < V; ++k) {
-          double* out = &colour[static_cast<size_t>(k) * C];
-          sample(x.data(), canvas_w_, C, taps_[static_cast<size_t>(k) * N + pixel], out);
+          const auto ki = static_cast<size_t>(k);
+          double* out = &colour[ki * C];
+          sample(x.data(), canvas_w_, C, taps_[ki * N + pixel], out);
           for (int c = 0; c < C; ++c) sum[c] += out[c];
-          const double grey = std::max(0.0, nerf::greyOf(out, C));
-          const double r = log.logOf(grey) - mid_log - change_[static_cast<size_t>(k) * N + pixel];
-          double weight;
-          event_sum += eventPenalty(r, &weight);
-          d_grey[static_cast<size_t>(k)] = 2 * event_scale * weight * r * log.logSlope(grey);
-          d_mid_log -= 2 * event_scale * weight * r;
+          greys[ki] = std::max(0.0, nerf::greyOf(out, C));
+          logs[ki] = log.logOf(greys[ki]);
+          d_grey[ki] = 0;
         }
+        // Each view against mid-exposure, and each view `lag` views on against it: the log change
+        // against the events in between (the change since mid telescopes).
+        for (int k = 0; k < V; ++k) {
+          const auto a = static_cast<size_t>(k);
+          const double r = logs[a] - mid_log - change_[a * N + pixel];
+          double weight;
+          event_sum += event_scale * eventPenalty(r, &weight);
+          const double d = 2 * event_scale * weight * r;
+          d_grey[a] += d;
+          d_mid_log -= d;
+          if (lag == 0 || k + lag >= V) continue;
+          const auto b = static_cast<size_t>(k + lag);
+          const double rw = logs[b] - change_[b * N + pixel] - (logs[a] - change_[a * N + pixel]);
+          event_sum += window_scale * eventPenalty(rw, &weight);
+          const double dw = 2 * window_scale * weight * rw;
+          d_grey[b] += dw;
+          d_grey[a] -= dw;
+        }
+        for (int k = 0; k < V; ++k)
+          d_grey[static_cast<size_t>(k)] *= log.logSlope(greys[static_cast<size_t>(k)]);
         double d_sum[3] = {0, 0, 0};
         for (int c = 0; c < C; ++c) {
           const double r = sum[c] / V - blurry_.ptr<float>(y)[px * C + c];
@@ -346,7 +384,7 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
       }
     }
   }
-  const double blur = blur_sum * blur_scale, event = event_sum * event_scale + smooth;
+  const double blur = blur_sum * blur_scale, event = event_sum + smooth;
   if (terms) *terms = {blur / blur_weight_, event / options_.beta};
   return blur + event;
 }

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cstdlib>
 
 #include "evkit/base/error.h"
 
@@ -74,6 +75,43 @@ EventStore filterNoise(const EventSpan& events, const NoiseFilterOptions& option
     }
     out.push_back(events.t[i], events.x[i], events.y[i], events.p[i]);
   }
+  return out;
+}
+
+EventStore filterUnsupported(const EventSpan& events, int64_t window_us, int64_t* dropped) {
+  if (window_us < 0) throw Error("support filter: the window must be >= 0 us");
+  const SensorSize s = events.sensor.known() ? events.sensor : boundingSensor(events);
+  const int w = s.width, h = s.height;
+  // Each pixel's latest event time, seen forwards and then backwards in time; an event is
+  // supported when a neighbour's latest (before it) or next (after it) is within the window.
+  std::vector<uint8_t> supported(events.size(), 0);
+  std::vector<int64_t> seen(static_cast<size_t>(w) * static_cast<size_t>(h));
+  const auto visit = [&](size_t i, int64_t none) {
+    const int x = events.x[i], y = events.y[i];
+    if (x >= w || y >= h) return;
+    const int64_t t = events.t[i];
+    for (int ny = std::max(0, y - 1); ny <= std::min(h - 1, y + 1) && !supported[i]; ++ny) {
+      for (int nx = std::max(0, x - 1); nx <= std::min(w - 1, x + 1); ++nx) {
+        const int64_t other = seen[static_cast<size_t>(ny) * w + nx];
+        if ((nx != x || ny != y) && other != none && std::abs(t - other) <= window_us) {
+          supported[i] = 1;
+          break;
+        }
+      }
+    }
+    seen[static_cast<size_t>(y) * w + x] = t;
+  };
+  const size_t n = events.size();
+  std::fill(seen.begin(), seen.end(), INT64_MIN);
+  for (size_t i = 0; i < n; ++i) visit(i, INT64_MIN);
+  std::fill(seen.begin(), seen.end(), INT64_MAX);
+  for (size_t i = n; i-- > 0;) visit(i, INT64_MAX);
+  EventStore out(events.sensor);
+  out.reserve(n);
+  for (size_t i = 0; i < n; ++i) {
+    if (supported[i]) out.push_back(events.t[i], events.x[i], events.y[i], events.p[i]);
+  }
+  if (dropped) *dropped = static_cast<int64_t>(n - out.size());
   return out;
 }
 

@@ -74,6 +74,43 @@ TEST(NoiseFilter, RefractoryDropsBurstsButKeepsAnEdgesEvents) {
   for (size_t i = 1; i < out.size(); ++i) EXPECT_EQ(out.x[i], 4);
 }
 
+TEST(SupportFilter, KeepsAMovingEdgeAndDropsShotNoise) {
+  // A vertical edge crossing a 40 x 30 sensor at one column per ms (each pixel fires two events,
+  // jittered by up to 200 us), and 120 noise events at random pixels and times over 100 ms.
+  std::mt19937_64 rng(7);
+  std::uniform_int_distribution<int> jitter(0, 200), x(0, 39), y(0, 29), t(0, 99'999);
+  std::vector<std::array<int64_t, 5>> rows;  // t, x, y, p, noise
+  for (int c = 0; c < 40; ++c) {
+    for (int r = 0; r < 30; ++r) {
+      for (int k = 0; k < 2; ++k) rows.push_back({2000 * c + 300 * k + jitter(rng), c, r, 1, 0});
+    }
+  }
+  for (int i = 0; i < 120; ++i) rows.push_back({t(rng), x(rng), y(rng), -1, 1});
+  std::sort(rows.begin(), rows.end());
+  EventStore s(SensorSize{40, 30});
+  for (const auto& r : rows)
+    s.push_back(r[0], static_cast<uint16_t>(r[1]), static_cast<uint16_t>(r[2]),
+                static_cast<int8_t>(r[3]));
+  int64_t dropped = 0;
+  const EventStore out = filterUnsupported(s.view(), 1000, &dropped);
+  // The noise events are the negative ones: every edge event stays, nearly all the noise goes
+  // (a noise event next to the edge as it passes, about 1 in 20, is kept).
+  const int64_t kept_edge = std::count(out.p.begin(), out.p.end(), 1);
+  const int64_t kept_noise = std::count(out.p.begin(), out.p.end(), -1);
+  EXPECT_EQ(kept_edge, 40 * 30 * 2);
+  EXPECT_LE(kept_noise, 18);
+  EXPECT_EQ(dropped, static_cast<int64_t>(s.size() - out.size()));
+  EXPECT_TRUE(std::is_sorted(out.t.begin(), out.t.end()));
+  EXPECT_EQ(out.sensor(), s.sensor());
+  // A lone event has no support, whatever the window; an empty stream stays empty.
+  EventStore lone(SensorSize{8, 8});
+  lone.push_back(10, 3, 3, 1);
+  lone.push_back(20, 3, 3, 1);  // its own pixel does not count
+  EXPECT_EQ(filterUnsupported(lone.view(), 1'000'000).size(), 0u);
+  EXPECT_EQ(filterUnsupported(EventStore(SensorSize{8, 8}).view(), 10).size(), 0u);
+  EXPECT_THROW(filterUnsupported(lone.view(), -1), Error);
+}
+
 TEST(NoiseFilter, RefusesBadOptions) {
   const EventStore s = background(1);
   NoiseFilterOptions o;

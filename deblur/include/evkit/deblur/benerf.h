@@ -54,6 +54,10 @@ struct BenerfOptions {
   enum class FieldKind { kHash, kMlp, kPixels };
   FieldKind field = FieldKind::kPixels;
   int cells = 2;
+  // The pixel grid keeps only the events a neighbouring pixel supports within the time the image
+  // takes to move this many pixels (filterUnsupported, evkit/events/filters.h), so that shot noise
+  // is not fitted as texture; 0: every event.
+  double support_px = 2;
   nerf::HashFieldConfig
       hash;  // levels, features, table; finest resolution adapted to the image when 0
   int finest_resolution = 0;  // 0: the image's larger side

@@ -3,7 +3,9 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <functional>
 #include <opencv2/core.hpp>
 #include <vector>
@@ -26,6 +28,13 @@ struct PixelGridOptions {
   // threshold step weighs less. Not used by BeNeRF: with d = C at `fast` (BENCHMARKS.md) the noisy
   // suite gained 0.4 dB and the noiseless standard suite lost 1.6.
   double event_robust = 0;
+  // The event term compares each view with mid-exposure and, when event_window > 0 (a fraction
+  // of the exposure, as BeNeRF's random windows, BenerfOptions::alpha), also each view with the
+  // view that far on, each a mean weighted by beta. Long windows alone add up the pixels' own
+  // threshold errors (a DAVIS pixel's ON and OFF thresholds differ from the nominal by 10-20%
+  // each, so that crossing a dark bar and back leaves it tenths of a log unit off where it
+  // started); the short ones hold the local changes (BENCHMARKS.md, "The pixel grid").
+  double event_window = 0;
   int motion_steps = 6;  // Levenberg-Marquardt steps on the motion before the image
   LogMapping log;
 };
@@ -58,8 +67,11 @@ class PixelGridProblem {
   int size() const { return canvas_w_ * canvas_h_ * channels_; }
   int views() const { return views_; }
   int margin() const { return margin_; }
-  // The longest image path of a pixel over the exposure, by the motion and the inverse depth.
+  // The longest image path of a pixel over the exposure, by the motion and the inverse depth
+  // (empty: at infinity), sampled on a 16 x 16 grid of pixels.
   double blurLength() const { return blur_px_; }
+  static double longestImagePath(const PinholeCamera& camera, const Trajectory& motion,
+                                 const cv::Mat& inverse_depth, int64_t t0_us, int64_t t1_us);
   // The canvas with `mid_image` inside and its border replicated into the margin.
   std::vector<double> start(const cv::Mat& mid_image) const;
   // The loss (weighted blur term + weighted event term) and, optionally, its gradient.
@@ -87,6 +99,12 @@ class PixelGridProblem {
   // depth it took.
   Eigen::Vector2d cellOf(int x, int y, const SE3& pose, double* rho_used = nullptr) const;
   void buildTaps();  // every view's stencils from the motion
+  // The event term's window in views (0: against mid-exposure).
+  int eventLag() const {
+    if (!(options_.event_window > 0)) return 0;
+    return std::clamp(static_cast<int>(std::lround(options_.event_window * views_)), 1,
+                      std::max(1, views_ - 1));
+  }
   // The Gauss-Newton normal equations of the loss in the knots' right perturbations, from
   // intensities x (the weighted sum's half gradient and its approximate Hessian).
   void normalEquations(const std::vector<double>& x, int stride, Eigen::MatrixXd& hessian,

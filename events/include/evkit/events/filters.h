@@ -6,6 +6,11 @@
 //    period is dropped (DV's RefractoryPeriodFilter), so that bursts of noise at microsecond
 //    spacing do not read as large contrast changes.
 // Both keep the events' order and the sensor.
+//
+// And for shot noise (events at random pixels and times, a few Hz per pixel on a DAVIS): the
+// background-activity filter (Delbruck, "Frame-free dynamic digital vision", 2008) keeps an event
+// only when one of its 8 neighbours fired within a window before or after it. A moving edge fires
+// its neighbours within the time it takes to move a pixel or two; a noise event is alone.
 #pragma once
 
 #include <cstdint>
@@ -38,5 +43,12 @@ std::vector<uint32_t> findHotPixels(const EventSpan& events, double ratio, int64
 // The events without hot pixels and refractory bursts; `report` (optional) says what went.
 EventStore filterNoise(const EventSpan& events, const NoiseFilterOptions& options,
                        NoiseFilterReport* report = nullptr);
+
+// The events that one of their 8 neighbouring pixels supports: a neighbour's event within
+// `window_us` before or after (both sides: offline, an edge's first events are supported by
+// those after them). The pixel's own events do not count. Keeps the order and the sensor;
+// `dropped` (optional) receives how many went.
+EventStore filterUnsupported(const EventSpan& events, int64_t window_us,
+                             int64_t* dropped = nullptr);
 
 }  // namespace evkit
