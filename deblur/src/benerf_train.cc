@@ -434,6 +434,7 @@ void runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   po.log = o.log;
   po.subdivision = o.cells;
   po.event_window = o.alpha;
+  po.event_robust = o.mid_robust * 0.5 * (contrast.on + contrast.off);
   PixelGridProblem problem(obs, camera, motion, inverse_depth, contrast, po);
   EdiOptions edi_options;
   edi_options.use_observation_contrast = false;

@@ -309,8 +309,9 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
           logs[ki] = log.logOf(greys[ki]);
           d_grey[ki] = 0;
         }
-        // Each view against mid-exposure, and each view `lag` views on against it: the log change
-        // against the events in between (the change since mid telescopes).
+        // Each view against mid-exposure (robust), and each view `lag` views on against it
+        // (squares): the log change against the events in between (the change since mid
+        // telescopes).
         for (int k = 0; k < V; ++k) {
           const auto a = static_cast<size_t>(k);
           const double r = logs[a] - mid_log - change_[a * N + pixel];
@@ -322,8 +323,8 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
           if (lag == 0 || k + lag >= V) continue;
           const auto b = static_cast<size_t>(k + lag);
           const double rw = logs[b] - change_[b * N + pixel] - (logs[a] - change_[a * N + pixel]);
-          event_sum += window_scale * eventPenalty(rw, &weight);
-          const double dw = 2 * window_scale * weight * rw;
+          event_sum += window_scale * rw * rw;
+          const double dw = 2 * window_scale * rw;
           d_grey[b] += dw;
           d_grey[a] -= dw;
         }

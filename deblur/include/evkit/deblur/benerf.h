@@ -58,6 +58,11 @@ struct BenerfOptions {
   // takes to move this many pixels (filterUnsupported, evkit/events/filters.h), so that shot noise
   // is not fitted as texture; 0: every event.
   double support_px = 2;
+  // The pixel grid compares each view with mid-exposure by the pseudo-Huber penalty with this many
+  // thresholds as its scale (PixelGridOptions::event_robust; 0: squares). At 2 (BENCHMARKS.md):
+  // noisy suite 33.57 -> 34.62 dB and natural 34.92 -> 35.10, but standard 36.15 -> 35.72
+  // (rgbd_blur15 35.17 -> 32.38, where the depth model's misfit is real), so not the default.
+  double mid_robust = 0;
   nerf::HashFieldConfig
       hash;  // levels, features, table; finest resolution adapted to the image when 0
   int finest_resolution = 0;  // 0: the image's larger side

@@ -23,10 +23,10 @@ struct PixelGridOptions {
   int min_views = 8, max_views = 64;
   int subdivision = 1;       // cells per pixel along each axis
   double smoothness = 1e-2;  // weight of the squared log differences between neighbouring cells
-  // The event term's penalty: r^2 for 0 (BeNeRF's), else the pseudo-Huber
-  // 2 d^2 (sqrt(1 + (r / d)^2) - 1), r^2 near 0 and linear beyond d, so that a noise event's whole
-  // threshold step weighs less. Not used by BeNeRF: with d = C at `fast` (BENCHMARKS.md) the noisy
-  // suite gained 0.4 dB and the noiseless standard suite lost 1.6.
+  // The penalty of the comparison with mid-exposure: r^2 for 0 (BeNeRF's), else the pseudo-Huber
+  // 2 d^2 (sqrt(1 + (r / d)^2) - 1), r^2 near 0 and linear beyond d (log units), so that a pixel
+  // whose own thresholds have drifted it (see event_window) or a noise event weighs less over the
+  // rest of the exposure. The windows' comparisons stay squared.
   double event_robust = 0;
   // The event term compares each view with mid-exposure and, when event_window > 0 (a fraction
   // of the exposure, as BeNeRF's random windows, BenerfOptions::alpha), also each view with the
