@@ -10,8 +10,8 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
-#include <deque>
 #include <opencv2/imgproc.hpp>
 
 #include "benerf_common.h"
@@ -21,6 +21,26 @@
 namespace evkit {
 
 namespace {
+
+// The sum of body(j) over j in [0, n), the range split into one block per thread and the blocks'
+// sums added in order: the same figure on every run with the same thread count (an OpenMP
+// reduction adds the threads' sums in the order they finish).
+template <class Body>
+double orderedSum(std::ptrdiff_t n, Body&& body) {
+  std::vector<double> parts(static_cast<size_t>(omp_get_max_threads()), 0.0);
+  int teams = 1;
+#pragma omp parallel
+  {
+    const int t = omp_get_thread_num(), T = omp_get_num_threads();
+    if (t == 0) teams = T;
+    double sum = 0;
+    for (std::ptrdiff_t j = n * t / T, end = n * (t + 1) / T; j < end; ++j) sum += body(j);
+    parts[static_cast<size_t>(t)] = sum;
+  }
+  double total = 0;
+  for (int t = 0; t < teams; ++t) total += parts[static_cast<size_t>(t)];
+  return total;
+}
 
 // A canvas position as its bilinear stencil's top-left cell and offsets, clamped inside the canvas.
 using Taps = CanvasTaps;
@@ -222,8 +242,11 @@ std::vector<double> PixelGridProblem::intensities(const std::vector<double>& u,
                                                   std::vector<double>* slopes) const {
   std::vector<double> x(u.size());
   if (slopes) slopes->resize(u.size());
-  double slope;
-  for (size_t i = 0; i < u.size(); ++i) x[i] = intensityOf(u[i], slopes ? &(*slopes)[i] : &slope);
+#pragma omp parallel for schedule(static)
+  for (size_t i = 0; i < u.size(); ++i) {
+    double slope;
+    x[i] = intensityOf(u[i], slopes ? &(*slopes)[i] : &slope);
+  }
   return x;
 }
 
@@ -270,7 +293,7 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
                event_scale = options_.beta / (static_cast<double>(N) * V),
                window_scale = lag > 0 ? options_.beta / (static_cast<double>(N) * (V - lag)) : 0;
   const LogMapping& log = options_.log;
-  if (gradient) gradient->assign(x.size(), 0.0);
+  if (gradient) gradient->resize(x.size());
   // Each thread's sums, added in thread order afterwards: the same figures on every run with the
   // same thread count.
   const int threads = omp_get_max_threads();
@@ -354,37 +377,40 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
     blur_sum += blur_sums[static_cast<size_t>(t)];
     event_sum += event_sums[static_cast<size_t>(t)];
   }
-  if (gradient) {
-    for (const auto& p : partial) {
-      for (size_t i = 0; i < x.size(); ++i) (*gradient)[i] += p[i];
-    }
-    for (size_t i = 0; i < x.size(); ++i) (*gradient)[i] *= slope[i];
-  }
-  // Smoothness of the log image between neighbouring cells (sub-pixel detail only where the data
-  // asks for it).
-  double smooth = 0;
-  const double lambda = options_.smoothness;
-  if (lambda > 0) {
-    const double scale = lambda / static_cast<double>(u.size());
-    for (int j = 0; j < canvas_h_; ++j) {
-      for (int i = 0; i < canvas_w_; ++i) {
-        for (int c = 0; c < C; ++c) {
-          const size_t a = (static_cast<size_t>(j) * canvas_w_ + i) * C + c;
+  // The threads' gradients added, through the log mapping to the unknowns, and the smoothness of
+  // the log image between neighbouring cells (sub-pixel detail only where the data asks for it),
+  // each cell's share of the squared differences to its right and lower neighbours and its
+  // gradient from all four.
+  const double scale = options_.smoothness / static_cast<double>(u.size());
+  const auto row = static_cast<size_t>(canvas_w_) * C;
+  const double smooth = orderedSum(canvas_h_, [&](std::ptrdiff_t j) {
+    double smooth_row = 0;
+    for (int i = 0; i < canvas_w_; ++i) {
+      for (int c = 0; c < C; ++c) {
+        const size_t a = (static_cast<size_t>(j) * canvas_w_ + i) * C + c;
+        double d_smooth = 0;
+        if (scale > 0) {
           if (i + 1 < canvas_w_) {
             const double d = u[a + C] - u[a];
-            smooth += scale * d * d;
-            if (gradient) (*gradient)[a + C] += 2 * scale * d, (*gradient)[a] -= 2 * scale * d;
+            smooth_row += scale * d * d;
+            d_smooth -= 2 * scale * d;
           }
           if (j + 1 < canvas_h_) {
-            const size_t b = a + static_cast<size_t>(canvas_w_) * C;
-            const double d = u[b] - u[a];
-            smooth += scale * d * d;
-            if (gradient) (*gradient)[b] += 2 * scale * d, (*gradient)[a] -= 2 * scale * d;
+            const double d = u[a + row] - u[a];
+            smooth_row += scale * d * d;
+            d_smooth -= 2 * scale * d;
           }
+          if (i > 0) d_smooth += 2 * scale * (u[a] - u[a - C]);
+          if (j > 0) d_smooth += 2 * scale * (u[a] - u[a - row]);
         }
+        if (!gradient) continue;
+        double sum = 0;
+        for (const auto& p : partial) sum += p[a];
+        (*gradient)[a] = sum * slope[a] + d_smooth;
       }
     }
-  }
+    return smooth_row;
+  });
   const double blur = blur_sum * blur_scale, event = event_sum + smooth;
   if (terms) *terms = {blur / blur_weight_, event / options_.beta};
   return blur + event;
@@ -394,47 +420,93 @@ int PixelGridProblem::solve(std::vector<double>& x, int iterations, Terms* terms
                             std::chrono::steady_clock::time_point deadline,
                             const std::function<void(int, double)>& progress) const {
   // L-BFGS (Nocedal and Wright, Numerical Optimization, algorithm 7.4) with a backtracking line
-  // search on the Armijo condition.
-  constexpr size_t kMemory = 8;
-  std::deque<std::vector<double>> s_list, y_list;
-  std::deque<double> rho_list;
-  std::vector<double> g, g_new, direction(x.size()), x_new(x.size());
+  // search on the Armijo condition. With a million cells the two-loop recursion is bound by memory
+  // traffic, not arithmetic: the history is kept in float (it only shapes the direction), in a ring
+  // that is allocated once, and each pass over the cells both finishes one pair's update and takes
+  // the next pair's dot product.
+  constexpr int kMemory = 8;
+  const auto n = static_cast<std::ptrdiff_t>(x.size());
+  std::vector<std::vector<float>> s_ring(kMemory), y_ring(kMemory);
+  std::array<double, kMemory> rho{}, alpha{};
+  int stored = 0, newest = -1;  // pairs held; the ring slot of the newest
+  const auto slot = [&](int age) { return (newest - age + kMemory) % kMemory; };  // age 0: newest
+  std::vector<double> g, g_new, q(x.size()), x_new(x.size());
   double f = evaluate(x, &g);
   int done = 0;
   for (; done < iterations && std::chrono::steady_clock::now() < deadline; ++done) {
-    direction = g;
-    std::vector<double> alpha(s_list.size());
-    for (size_t i = s_list.size(); i-- > 0;) {
-      double dot = 0;
-      for (size_t j = 0; j < x.size(); ++j) dot += s_list[i][j] * direction[j];
-      alpha[i] = rho_list[i] * dot;
-      for (size_t j = 0; j < x.size(); ++j) direction[j] -= alpha[i] * y_list[i][j];
+    // First loop, newest pair to oldest: alpha_i = rho_i s_i.q, q -= alpha_i y_i (q starts as g).
+    double dot = 0;
+    if (stored > 0) {
+      const float* s0 = s_ring[slot(0)].data();
+      dot = orderedSum(n, [&](std::ptrdiff_t j) {
+        q[j] = g[j];
+        return s0[j] * g[j];
+      });
+    } else {
+      q = g;
     }
-    double gamma = 1;
-    if (!s_list.empty()) {
-      double sy = 0, yy = 0;
-      for (size_t j = 0; j < x.size(); ++j)
-        sy += s_list.back()[j] * y_list.back()[j], yy += y_list.back()[j] * y_list.back()[j];
+    for (int age = 0; age < stored; ++age) {
+      alpha[age] = rho[slot(age)] * dot;
+      const float* y = y_ring[slot(age)].data();
+      const float* s_next = age + 1 < stored ? s_ring[slot(age + 1)].data() : nullptr;
+      const double a_i = alpha[age];
+      if (s_next) {
+        dot = orderedSum(n, [&](std::ptrdiff_t j) {
+          q[j] -= a_i * y[j];
+          return s_next[j] * q[j];
+        });
+      } else {
+#pragma omp parallel for schedule(static)
+        for (std::ptrdiff_t j = 0; j < n; ++j) q[j] -= a_i * y[j];
+      }
+    }
+    // The initial Hessian's scale: s.y / y.y of the newest pair, or a first step of 1e-3 in
+    // intensity.
+    double gamma = 0;
+    if (stored > 0) {
+      const float* s0 = s_ring[slot(0)].data();
+      const float* y0 = y_ring[slot(0)].data();
+      const double sy = orderedSum(n, [&](std::ptrdiff_t j) { return double(s0[j]) * y0[j]; });
+      const double yy = orderedSum(n, [&](std::ptrdiff_t j) { return double(y0[j]) * y0[j]; });
       gamma = sy / yy;
     } else {
-      double gg = 0;
-      for (double v : g) gg += v * v;
-      gamma = 1e-3 / std::sqrt(std::max(gg, 1e-300));  // a first step of 1e-3 in intensity
+      const double gg = orderedSum(n, [&](std::ptrdiff_t j) { return g[j] * g[j]; });
+      gamma = 1e-3 / std::sqrt(std::max(gg, 1e-300));
     }
-    for (double& v : direction) v *= gamma;
-    for (size_t i = 0; i < s_list.size(); ++i) {
-      double dot = 0;
-      for (size_t j = 0; j < x.size(); ++j) dot += y_list[i][j] * direction[j];
-      const double beta = rho_list[i] * dot;
-      for (size_t j = 0; j < x.size(); ++j) direction[j] += (alpha[i] - beta) * s_list[i][j];
+    // Second loop, oldest pair to newest: beta_i = rho_i y_i.r, r += (alpha_i - beta_i) s_i, where
+    // r starts as gamma q and is kept in q.
+    if (stored > 0) {
+      const float* y = y_ring[slot(stored - 1)].data();
+      dot = orderedSum(n, [&](std::ptrdiff_t j) {
+        q[j] *= gamma;
+        return y[j] * q[j];
+      });
+    } else {
+#pragma omp parallel for schedule(static)
+      for (std::ptrdiff_t j = 0; j < n; ++j) q[j] *= gamma;
     }
-    double slope = 0;
-    for (size_t j = 0; j < x.size(); ++j) slope -= g[j] * direction[j];
+    for (int age = stored - 1; age >= 0; --age) {
+      const double c = alpha[age] - rho[slot(age)] * dot;
+      const float* s_i = s_ring[slot(age)].data();
+      const float* y_next = age > 0 ? y_ring[slot(age - 1)].data() : nullptr;
+      if (y_next) {
+        dot = orderedSum(n, [&](std::ptrdiff_t j) {
+          q[j] += c * s_i[j];
+          return y_next[j] * q[j];
+        });
+      } else {
+#pragma omp parallel for schedule(static)
+        for (std::ptrdiff_t j = 0; j < n; ++j) q[j] += c * s_i[j];
+      }
+    }
+    // q approximates the inverse Hessian times g: the step is -q.
+    const double slope = -orderedSum(n, [&](std::ptrdiff_t j) { return g[j] * q[j]; });
     if (!(slope < 0)) break;  // not a descent direction: converged or lost
     double step = 1, f_new = f;
     bool accepted = false;
     for (int tries = 0; tries < 20; ++tries, step *= 0.5) {
-      for (size_t j = 0; j < x.size(); ++j) x_new[j] = x[j] - step * direction[j];
+#pragma omp parallel for schedule(static)
+      for (std::ptrdiff_t j = 0; j < n; ++j) x_new[j] = x[j] - step * q[j];
       f_new = evaluate(x_new, &g_new);
       if (f_new <= f + 1e-4 * step * slope) {
         accepted = true;
@@ -442,22 +514,27 @@ int PixelGridProblem::solve(std::vector<double>& x, int iterations, Terms* terms
       }
     }
     if (!accepted) break;
-    std::vector<double> s(x.size()), y(x.size());
-    double sy = 0;
-    for (size_t j = 0; j < x.size(); ++j) {
-      s[j] = x_new[j] - x[j];
-      y[j] = g_new[j] - g[j];
-      sy += s[j] * y[j];
-    }
+    // The new pair goes into the oldest slot (or a fresh one while the ring fills).
+    const int target = (newest + 1) % kMemory;
+    std::vector<float>& s_new = s_ring[target];
+    std::vector<float>& y_new = y_ring[target];
+    s_new.resize(x.size());
+    y_new.resize(x.size());
+    const double sy = orderedSum(n, [&](std::ptrdiff_t j) {
+      s_new[j] = static_cast<float>(x_new[j] - x[j]);
+      y_new[j] = static_cast<float>(g_new[j] - g[j]);
+      return double(s_new[j]) * y_new[j];
+    });
     x.swap(x_new);
     g.swap(g_new);
     f = f_new;
     if (progress) progress(done + 1, f);
     if (sy > 1e-300) {
-      s_list.push_back(std::move(s));
-      y_list.push_back(std::move(y));
-      rho_list.push_back(1 / sy);
-      if (s_list.size() > kMemory) s_list.pop_front(), y_list.pop_front(), rho_list.pop_front();
+      newest = target;
+      rho[newest] = 1 / sy;
+      stored = std::min(stored + 1, kMemory);
+    } else if (stored == kMemory) {
+      --stored;  // the pair is not kept, and its slot held the oldest
     }
   }
   if (terms) evaluate(x, nullptr, terms);
