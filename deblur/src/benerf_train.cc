@@ -65,12 +65,14 @@ struct Start {
   int views = 0;
   double blur_px = 0;
   ExposureMotion motion;  // init=frames
+  bool contrast_given = false;  // by the settings or contrast.txt, not estimated
 };
 
 Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& result) {
-  Start s{given, given.virtual_views, 0, {}};
+  Start s{given, given.virtual_views, 0, {}, false};
   BenerfOptions& o = s.options;
   o.contrast = resolveContrast(o.contrast, obs);
+  s.contrast_given = o.contrast.has_value();
   const bool estimate =
       !o.contrast && o.estimate_contrast && o.event_form == BenerfOptions::EventForm::kAuto;
   if (s.views <= 0 || o.init == BenerfOptions::Init::kEvents || estimate) {
@@ -392,6 +394,49 @@ Observation supportedEvents(const Observation& obs, double support_px, double bl
   return out;
 }
 
+// EDI's mid-exposure frame with thresholds c.
+cv::Mat ediMidFrame(const Observation& obs, const Contrast& c) {
+  EdiOptions edi_options;
+  edi_options.use_observation_contrast = false;
+  edi_options.contrast = c;
+  DeblurRequest request;
+  request.times_us = {obs.blurry.midExposure()};
+  return EdiDeblurrer{edi_options}.run(obs, request).frames.front().image;
+}
+
+// The thresholds, when none are given, as the scale of `ratio` (c_off / c_on) whose EDI frame,
+// moved by the motion over the exposure and averaged, best re-makes the blurry frame (the grid's
+// blur term there). EDI's own search has no motion model and scores the frame's sharpness, which
+// too large a c also raises; with the motion the wrong c shows as ghosts that re-blur away from the
+// frame. A scan over [0.05, 1] in steps of 2^(1/3), then a parabola in log c through the least
+// and its neighbours.
+Contrast contrastFromMotion(const Observation& obs, const PinholeCamera& camera,
+                            const Trajectory& motion, const cv::Mat& inverse_depth,
+                            const PixelGridOptions& po, double ratio) {
+  const auto blurTerm = [&](double c) {
+    const Contrast candidate{c, c * ratio};
+    const PixelGridProblem problem(obs, camera, motion, inverse_depth, candidate, po);
+    PixelGridProblem::Terms terms;
+    problem.evaluate(problem.start(ediMidFrame(obs, candidate)), nullptr, &terms);
+    return terms.blur;
+  };
+  const double step = std::log(2.0) / 3;
+  std::vector<double> logs, terms;
+  for (double l = std::log(0.05); l <= std::log(1.0) + 1e-9; l += step) {
+    logs.push_back(l);
+    terms.push_back(blurTerm(std::exp(l)));
+  }
+  const size_t best =
+      static_cast<size_t>(std::min_element(terms.begin(), terms.end()) - terms.begin());
+  double l = logs[best];
+  if (best > 0 && best + 1 < logs.size()) {
+    const double a = terms[best - 1], b = terms[best], c = terms[best + 1];
+    const double curvature = a - 2 * b + c;
+    if (curvature > 0) l += 0.5 * step * (a - c) / curvature;
+  }
+  return {std::exp(l), std::exp(l) * ratio};
+}
+
 // The pixel-grid scene (pixel_grid.cc): the registered motion, or the events' rotation where the
 // registration gave none, and the image found from EDI's mid-exposure frame.
 void runPixelGrid(const Observation& given, const DeblurRequest& request, const Start& s,
@@ -400,8 +445,36 @@ void runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   const PinholeCamera camera =
       given.camera.withSize(given.blurry.image.cols, given.blurry.image.rows);
   const int64_t t0 = given.blurry.exposure_start_us, t1 = given.blurry.exposure_end_us;
-  std::vector<StampedPose> poses = s.motion.poses;
-  cv::Mat inverse_depth = s.motion.inverse_depth;
+  ExposureMotion registered = s.motion;
+  PixelGridOptions po;
+  if (o.beta >= 0) po.beta = o.beta;
+  po.dim_frame = o.dim_frame;
+  po.log = o.log;
+  po.subdivision = o.cells;
+  po.event_window = o.alpha;
+  // Without thresholds: the scale that the registered motion explains best, and the motion
+  // registered again between EDI's frames at it.
+  Contrast contrast;
+  if (s.contrast_given) {
+    contrast = *o.contrast;
+  } else if (!registered.poses.empty()) {
+    const BlurMeasurement m = measureBlur(given, std::nullopt, o.log);
+    result.parameters["contrast_searched"] = m.c_on;
+    const Trajectory first =
+        fitTrajectory(o.trajectory, std::max(o.knots, Trajectory::minimumKnots(o.trajectory)), t0,
+                      t1, registered.poses);
+    contrast =
+        contrastFromMotion(given, camera, first, registered.inverse_depth, po, m.c_off / m.c_on);
+    result.parameters["contrast_estimated"] = contrast.on;
+    ExposureMotion again = motionFromLatentFrames(given, camera, contrast, o.log);
+    if (!again.poses.empty()) registered = std::move(again);
+  } else {
+    const BlurMeasurement m = measureBlur(given, std::nullopt, o.log);
+    contrast = {m.c_on, m.c_off};
+    result.parameters["contrast_estimated"] = m.c_on;
+  }
+  std::vector<StampedPose> poses = registered.poses;
+  cv::Mat inverse_depth = registered.inverse_depth;
   result.parameters["motion_from_frames"] = poses.empty() ? 0 : 1;
   if (poses.empty()) {
     const Vector3 omega = rotationFromEvents(given, camera, s.blur_px);
@@ -420,29 +493,9 @@ void runPixelGrid(const Observation& given, const DeblurRequest& request, const 
                 PixelGridProblem::longestImagePath(camera, motion, inverse_depth, t0, t1), result)
           : Observation{};
   const Observation& obs = o.support_px > 0 ? filtered : given;
-  Contrast contrast;
-  if (o.contrast) {
-    contrast = *o.contrast;
-  } else {
-    const BlurMeasurement m = measureBlur(obs, std::nullopt, o.log);
-    contrast = {m.c_on, m.c_off};
-    result.parameters["contrast_estimated"] = m.c_on;
-  }
-  PixelGridOptions po;
-  if (o.beta >= 0) po.beta = o.beta;
-  po.dim_frame = o.dim_frame;
-  po.log = o.log;
-  po.subdivision = o.cells;
-  po.event_window = o.alpha;
   po.event_robust = o.mid_robust * 0.5 * (contrast.on + contrast.off);
   PixelGridProblem problem(obs, camera, motion, inverse_depth, contrast, po);
-  EdiOptions edi_options;
-  edi_options.use_observation_contrast = false;
-  edi_options.contrast = contrast;
-  DeblurRequest mid_request;
-  mid_request.times_us = {obs.blurry.midExposure()};
-  std::vector<double> x =
-      problem.start(EdiDeblurrer{edi_options}.run(obs, mid_request).frames.front().image);
+  std::vector<double> x = problem.start(ediMidFrame(obs, contrast));
   result.timings_s["setup"] = secondsSince(start);
   const auto train_start = Clock::now();
   PixelGridProblem::Terms terms;
