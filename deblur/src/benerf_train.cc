@@ -64,12 +64,13 @@ struct Start {
   BenerfOptions options;
   int views = 0;
   double blur_px = 0;
-  ExposureMotion motion;  // init=frames
+  ExposureMotion motion;        // init=frames
   bool contrast_given = false;  // by the settings or contrast.txt, not estimated
+  BlurMeasurement measured;     // EDI's pass: the blur length and, without thresholds, its search
 };
 
 Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& result) {
-  Start s{given, given.virtual_views, 0, {}, false};
+  Start s{given, given.virtual_views, 0, {}, false, {}};
   BenerfOptions& o = s.options;
   o.contrast = resolveContrast(o.contrast, obs);
   s.contrast_given = o.contrast.has_value();
@@ -77,6 +78,7 @@ Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& 
       !o.contrast && o.estimate_contrast && o.event_form == BenerfOptions::EventForm::kAuto;
   if (s.views <= 0 || o.init == BenerfOptions::Init::kEvents || estimate) {
     const BlurMeasurement m = measureBlur(obs, o.contrast, o.log);
+    s.measured = m;
     s.blur_px = m.blur_px;
     result.parameters["blur_px_measured"] = s.blur_px;
     if (estimate && m.inside) {
@@ -413,18 +415,16 @@ cv::Mat ediMidFrame(const Observation& obs, const Contrast& c) {
 Contrast contrastFromMotion(const Observation& obs, const PinholeCamera& camera,
                             const Trajectory& motion, const cv::Mat& inverse_depth,
                             const PixelGridOptions& po, double ratio) {
-  const auto blurTerm = [&](double c) {
-    const Contrast candidate{c, c * ratio};
-    const PixelGridProblem problem(obs, camera, motion, inverse_depth, candidate, po);
-    PixelGridProblem::Terms terms;
-    problem.evaluate(problem.start(ediMidFrame(obs, candidate)), nullptr, &terms);
-    return terms.blur;
-  };
+  // The blur term does not depend on the thresholds: one problem serves every c.
   const double step = std::log(2.0) / 3;
+  const PixelGridProblem problem(obs, camera, motion, inverse_depth, Contrast{1, ratio}, po);
   std::vector<double> logs, terms;
   for (double l = std::log(0.05); l <= std::log(1.0) + 1e-9; l += step) {
+    const double c = std::exp(l);
+    PixelGridProblem::Terms t;
+    problem.evaluate(problem.start(ediMidFrame(obs, Contrast{c, c * ratio})), nullptr, &t);
     logs.push_back(l);
-    terms.push_back(blurTerm(std::exp(l)));
+    terms.push_back(t.blur);
   }
   const size_t best =
       static_cast<size_t>(std::min_element(terms.begin(), terms.end()) - terms.begin());
@@ -458,7 +458,8 @@ void runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   if (s.contrast_given) {
     contrast = *o.contrast;
   } else if (!registered.poses.empty()) {
-    const BlurMeasurement m = measureBlur(given, std::nullopt, o.log);
+    const BlurMeasurement m =
+        s.measured.searched ? s.measured : measureBlur(given, std::nullopt, o.log);
     result.parameters["contrast_searched"] = m.c_on;
     const Trajectory first =
         fitTrajectory(o.trajectory, std::max(o.knots, Trajectory::minimumKnots(o.trajectory)), t0,

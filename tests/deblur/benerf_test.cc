@@ -650,14 +650,16 @@ TEST(PixelGrid, MotionGradientMatchesCentralDifferences) {
 namespace evkit {
 namespace {
 
-// BeNeRF at `fast` and EDI (its defaults) at mid-exposure, and their PSNRs against the truth.
+// BeNeRF (`fast` unless told) and EDI (its defaults) at mid-exposure, and their PSNRs against the
+// truth.
 struct AtMidExposure {
   DeblurResult benerf, edi;
   double benerf_psnr = 0, edi_psnr = 0;
 };
-AtMidExposure benerfAndEdi(const Observation& obs) {
+AtMidExposure benerfAndEdi(const Observation& obs,
+                           const BenerfOptions& options = benerfBudget("fast")) {
   const DeblurRequest request{{obs.blurry.midExposure()}, {}};
-  AtMidExposure m{BenerfDeblurrer(benerfBudget("fast")).run(obs, request),
+  AtMidExposure m{BenerfDeblurrer(options).run(obs, request),
                   EdiDeblurrer{EdiOptions{}}.run(obs, request)};
   const Frame& gt = gtMid(obs);
   m.benerf_psnr = psnr(m.benerf.frames[0].image, gt.image);
@@ -690,26 +692,25 @@ TEST(Benerf, PixelGridIsSharperThanEdiOnNaturalScenes) {
 // Without thresholds, as on real data: EDI's search scores its frame's sharpness, which too large a
 // c can also raise (on the motorcycle here it ends at 0.5; the truth is 0.2). The grid takes the c
 // whose EDI frame, moved by the registered motion and averaged, re-makes the blurry frame best.
-// Measured: c 0.190 and 0.219; the motorcycle 31.1 dB against EDI's 20.8 with its searched c, the
-// gravel (where the search is right) 34.8 against 34.9.
+// Measured: c 0.219, 31.3 dB against EDI's 20.8 with its searched c. (Not asserted, to keep the
+// test cheap under ASan: on the gravel, where the search is right, c 0.190 and 34.8 dB against
+// 34.9.)
 TEST(Benerf, ThresholdsNotGivenAreTheScaleThatTheMotionExplains) {
-  for (const char* scene : {"gravel_ground", "motorcycle"}) {
-    auto natural = naturalObservation(scene, 1);
-    if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
-    SCOPED_TRACE(scene);
-    Observation& obs = *natural;
-    ASSERT_TRUE(obs.contrast);
-    const double truth = obs.contrast->on;
-    obs.contrast.reset();
-    const AtMidExposure m = benerfAndEdi(obs);
-    const DeblurResult &r = m.benerf, &edi = m.edi;
-    const double ours = m.benerf_psnr, theirs = m.edi_psnr;
-    EXPECT_NEAR(r.parameters.at("contrast_estimated"), truth, 0.15 * truth);
-    const bool search_lost = std::abs(edi.parameters.at("contrast_on") - truth) > 0.5 * truth;
-    EXPECT_GT(ours, theirs + (search_lost ? 5.0 : -0.5))
-        << "BeNeRF " << ours << " dB, EDI (c searched: " << edi.parameters.at("contrast_on") << ") "
-        << theirs << " dB";
-  }
+  auto natural = naturalObservation("motorcycle", 1);
+  if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
+  Observation& obs = *natural;
+  ASSERT_TRUE(obs.contrast);
+  const double truth = obs.contrast->on;
+  obs.contrast.reset();
+  BenerfOptions o = benerfBudget("fast");
+  o.iterations = 300;  // 30 L-BFGS steps: the c is found before them
+  const AtMidExposure m = benerfAndEdi(obs, o);
+  EXPECT_NEAR(m.benerf.parameters.at("contrast_estimated"), truth, 0.15 * truth);
+  const double searched = m.edi.parameters.at("contrast_on");
+  ASSERT_GT(std::abs(searched - truth), 0.5 * truth) << "EDI's search found " << searched;
+  EXPECT_GT(m.benerf_psnr, m.edi_psnr + 5.0)
+      << "BeNeRF " << m.benerf_psnr << " dB, EDI (c searched: " << searched << ") " << m.edi_psnr
+      << " dB";
 }
 
 // A DAVIS pixel's ON and OFF thresholds differ from the nominal C by 10-20% each: a pixel that
