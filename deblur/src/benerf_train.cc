@@ -437,14 +437,18 @@ Contrast contrastFromMotion(const Observation& obs, const PinholeCamera& camera,
   return {std::exp(l), std::exp(l) * ratio};
 }
 
-// The pixel-grid scene (pixel_grid.cc): the registered motion, or the events' rotation where the
-// registration gave none, and the image found from EDI's mid-exposure frame.
+// The pixel-grid scene (pixel_grid.cc) on the registered motion (the caller runs it only where the
+// registration gave one), the image found from EDI's mid-exposure frame.
 void runPixelGrid(const Observation& given, const DeblurRequest& request, const Start& s,
                   Clock::time_point start, DeblurResult& result) {
   const BenerfOptions& o = s.options;
   const PinholeCamera camera =
       given.camera.withSize(given.blurry.image.cols, given.blurry.image.rows);
   const int64_t t0 = given.blurry.exposure_start_us, t1 = given.blurry.exposure_end_us;
+  const auto fit = [&](const std::vector<StampedPose>& poses) {
+    return fitTrajectory(o.trajectory, std::max(o.knots, Trajectory::minimumKnots(o.trajectory)),
+                         t0, t1, poses);
+  };
   ExposureMotion registered = s.motion;
   PixelGridOptions po;
   if (o.beta >= 0) po.beta = o.beta;
@@ -457,36 +461,19 @@ void runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   Contrast contrast;
   if (s.contrast_given) {
     contrast = *o.contrast;
-  } else if (!registered.poses.empty()) {
+  } else {
     const BlurMeasurement m =
         s.measured.searched ? s.measured : measureBlur(given, std::nullopt, o.log);
     result.parameters["contrast_searched"] = m.c_on;
-    const Trajectory first =
-        fitTrajectory(o.trajectory, std::max(o.knots, Trajectory::minimumKnots(o.trajectory)), t0,
-                      t1, registered.poses);
-    contrast =
-        contrastFromMotion(given, camera, first, registered.inverse_depth, po, m.c_off / m.c_on);
+    contrast = contrastFromMotion(given, camera, fit(registered.poses), registered.inverse_depth,
+                                  po, m.c_off / m.c_on);
     result.parameters["contrast_estimated"] = contrast.on;
     ExposureMotion again = motionFromLatentFrames(given, camera, contrast, o.log);
     if (!again.poses.empty()) registered = std::move(again);
-  } else {
-    const BlurMeasurement m = measureBlur(given, std::nullopt, o.log);
-    contrast = {m.c_on, m.c_off};
-    result.parameters["contrast_estimated"] = m.c_on;
   }
-  std::vector<StampedPose> poses = registered.poses;
-  cv::Mat inverse_depth = registered.inverse_depth;
-  result.parameters["motion_from_frames"] = poses.empty() ? 0 : 1;
-  if (poses.empty()) {
-    const Vector3 omega = rotationFromEvents(given, camera, s.blur_px);
-    for (int k = 0; k <= 20; ++k) {
-      poses.push_back(
-          {t0 + (t1 - t0) * k / 20, SE3(expSO3((k / 20.0 - 0.5) * omega), Vector3::Zero())});
-    }
-    inverse_depth.release();
-  }
-  const Trajectory motion = fitTrajectory(
-      o.trajectory, std::max(o.knots, Trajectory::minimumKnots(o.trajectory)), t0, t1, poses);
+  const cv::Mat& inverse_depth = registered.inverse_depth;
+  result.parameters["motion_from_frames"] = 1;
+  const Trajectory motion = fit(registered.poses);
   const Observation filtered =
       o.support_px > 0
           ? supportedEvents(
