@@ -3,6 +3,8 @@
 // time, optionally a translation per time seen through a per-tile inverse depth), and the choice
 // between the two by whether the parallax is observable in the data.
 
+#include <omp.h>
+
 #include <algorithm>
 #include <cmath>
 #include <opencv2/imgproc.hpp>
@@ -124,26 +126,47 @@ void fitDepth(const PinholeCamera& camera, const std::vector<Track>& tracks,
               const DepthModel& model, const std::vector<Vector3>& theta,
               const std::vector<Vector3>& p, const std::vector<int>& support, Eigen::VectorXd& w) {
   const int n = model.size();
-  std::vector<std::pair<int, double>> phi;
+  const int threads = omp_get_max_threads();
+  std::vector<Eigen::MatrixXd> Hs(static_cast<size_t>(threads));
+  std::vector<Eigen::VectorXd> gs(static_cast<size_t>(threads));
   for (int iteration = 0; iteration < 4; ++iteration) {
-    Eigen::MatrixXd H = Eigen::MatrixXd::Zero(n, n);
-    Eigen::VectorXd g = Eigen::VectorXd::Zero(n);
-    for (const Track& tr : tracks) {
-      model.basis(tr, phi);
-      double rho = 0;
-      for (const auto& [j, v] : phi) rho += v * w[j];
-      for (size_t k = 0; k < theta.size(); ++k) {
-        const Eigen::Vector2d& q = tr.seen[k];
-        if (!std::isfinite(q.x())) continue;
-        const Eigen::Vector2d r0 = predict(camera, tr.bearing, rho, theta[k], p[k]) - q;
-        const Eigen::Vector2d J =
-            (predict(camera, tr.bearing, rho + 1e-5, theta[k], p[k]) - r0 - q) / 1e-5;
-        const double wt = huberWeight(r0.norm());
-        for (const auto& [a, va] : phi) {
-          g[a] += wt * va * J.dot(r0);
-          for (const auto& [b, vb] : phi) H(a, b) += wt * va * vb * J.squaredNorm();
+    // Each thread's sums over a fixed share of the tracks, added in thread order: the same
+    // figures on every run with the same thread count.
+    int teams = 1;
+#pragma omp parallel
+    {
+      const int t = omp_get_thread_num(), T = omp_get_num_threads();
+      if (t == 0) teams = T;
+      Eigen::MatrixXd& H = Hs[static_cast<size_t>(t)];
+      Eigen::VectorXd& g = gs[static_cast<size_t>(t)];
+      H = Eigen::MatrixXd::Zero(n, n);
+      g = Eigen::VectorXd::Zero(n);
+      std::vector<std::pair<int, double>> phi;
+      const size_t begin = tracks.size() * t / T, end = tracks.size() * (t + 1) / T;
+      for (size_t i = begin; i < end; ++i) {
+        const Track& tr = tracks[i];
+        model.basis(tr, phi);
+        double rho = 0;
+        for (const auto& [j, v] : phi) rho += v * w[j];
+        for (size_t k = 0; k < theta.size(); ++k) {
+          const Eigen::Vector2d& q = tr.seen[k];
+          if (!std::isfinite(q.x())) continue;
+          const Eigen::Vector2d r0 = predict(camera, tr.bearing, rho, theta[k], p[k]) - q;
+          const Eigen::Vector2d J =
+              (predict(camera, tr.bearing, rho + 1e-5, theta[k], p[k]) - r0 - q) / 1e-5;
+          const double wt = huberWeight(r0.norm());
+          for (const auto& [a, va] : phi) {
+            g[a] += wt * va * J.dot(r0);
+            for (const auto& [b, vb] : phi) H(a, b) += wt * va * vb * J.squaredNorm();
+          }
         }
       }
+    }
+    Eigen::MatrixXd H = Hs[0];
+    Eigen::VectorXd g = gs[0];
+    for (int t = 1; t < teams; ++t) {
+      H += Hs[static_cast<size_t>(t)];
+      g += gs[static_cast<size_t>(t)];
     }
     for (int j = 0; j < n; ++j) {
       if (support[static_cast<size_t>(j)] < 6)
@@ -191,7 +214,9 @@ RigidFit fitRigid(const PinholeCamera& camera, const std::vector<Track>& tracks,
       start ? start->theta : std::vector<Vector3>(static_cast<size_t>(times), Vector3::Zero());
   f.p.assign(static_cast<size_t>(times), Vector3::Zero());
   f.rho.assign(tracks.size(), model ? 1 / 1.5 : 0.0);
+  // The times are fitted independently (each its own figures, whatever the thread count).
   if (!model) {
+#pragma omp parallel for schedule(dynamic)
     for (int k = 0; k < times; ++k) {
       if (k != mid)
         fitTime(camera, tracks, f.rho, k, false, 0, f.theta[static_cast<size_t>(k)],
@@ -213,6 +238,7 @@ RigidFit fitRigid(const PinholeCamera& camera, const std::vector<Track>& tracks,
     w[0] = 1 / 1.5;
   const double ridge = 1e-4 * static_cast<double>(tracks.size()) * camera.fx * camera.fx;
   for (int round = 0; round < 6; ++round) {
+#pragma omp parallel for schedule(dynamic)
     for (int k = 0; k < times; ++k) {
       if (k != mid)
         fitTime(camera, tracks, f.rho, k, true, ridge, f.theta[static_cast<size_t>(k)],
