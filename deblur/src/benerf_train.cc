@@ -72,6 +72,16 @@ struct Start {
   BlurMeasurement measured;     // EDI's pass: the blur length and, without thresholds, its search
 };
 
+// The registration's figures in the summary.
+void reportMotion(const ExposureMotion& motion, DeblurResult& result) {
+  result.parameters["representation_depth"] = motion.depth ? 1 : 0;
+  result.parameters["parallax_px"] = motion.parallax_px;
+  result.parameters["motion_residual_rotation_px"] = motion.residual_rotation_px;
+  result.parameters["motion_residual_plane_px"] = motion.residual_plane_px;
+  result.parameters["motion_residual_depth_px"] = motion.residual_depth_px;
+  result.parameters["motion_tracks"] = motion.tracks;
+}
+
 Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& result) {
   Start s{given, given.virtual_views, 0, {}, false, {}};
   BenerfOptions& o = s.options;
@@ -91,14 +101,22 @@ Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& 
   }
   if (s.views <= 0) s.views = virtualViewsFor(s.blur_px);
   if (o.init == BenerfOptions::Init::kFrames || o.field == BenerfOptions::FieldKind::kPixels) {
-    s.motion = motionFromLatentFrames(
-        obs, obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows), o.contrast, o.log);
-    result.parameters["representation_depth"] = s.motion.depth ? 1 : 0;
-    result.parameters["parallax_px"] = s.motion.parallax_px;
-    result.parameters["motion_residual_rotation_px"] = s.motion.residual_rotation_px;
-    result.parameters["motion_residual_plane_px"] = s.motion.residual_plane_px;
-    result.parameters["motion_residual_depth_px"] = s.motion.residual_depth_px;
-    result.parameters["motion_tracks"] = s.motion.tracks;
+    const PinholeCamera camera = obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows);
+    s.motion = motionFromLatentFrames(obs, camera, o.contrast, o.log);
+    // The pixel grid without thresholds: where the registration at EDI's searched c fails (its
+    // search scores sharpness, which a c too large raises too, and EDI's frames then carry ghost
+    // edges that the flow cannot follow), at c's below it by steps of 2^(1/3) to a quarter, the
+    // first that registers; runPixelGrid refines the c from there.
+    if (s.motion.poses.empty() && !s.contrast_given &&
+        o.field == BenerfOptions::FieldKind::kPixels && s.measured.searched) {
+      const double ratio = s.measured.c_off / s.measured.c_on;
+      for (int k = 1; k <= 6 && s.motion.poses.empty(); ++k) {
+        const double c = s.measured.c_on * std::exp2(-k / 3.0);
+        s.motion = motionFromLatentFrames(obs, camera, Contrast{c, c * ratio}, o.log);
+        if (!s.motion.poses.empty()) result.parameters["contrast_registered"] = c;
+      }
+    }
+    reportMotion(s.motion, result);
   }
   return s;
 }
@@ -554,7 +572,10 @@ void runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     contrast = found.contrast;
     if (found.motion.poses.empty())
       found.motion = motionFromLatentFrames(given, camera, contrast, o.log);
-    if (!found.motion.poses.empty()) registered = std::move(found.motion);
+    if (!found.motion.poses.empty()) {
+      registered = std::move(found.motion);
+      reportMotion(registered, result);
+    }
     result.parameters["contrast_estimated"] = contrast.on;
   }
   const cv::Mat& inverse_depth = registered.inverse_depth;
