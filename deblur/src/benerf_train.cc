@@ -432,10 +432,10 @@ cv::Mat ediMidFrame(const Observation& obs, const Contrast& c) {
 // blur term there). EDI's own search has no motion model and scores the frame's sharpness, which
 // too large a c also raises; with the motion the wrong c shows as ghosts that re-blur away from the
 // frame. A scan over [0.05, 1] in steps of 2^(1/3), then a parabola in log c through the least
-// and its neighbours.
+// and its neighbours; `at_end`: the least was at an end of the range.
 Contrast contrastFromMotion(const Observation& obs, const PinholeCamera& camera,
                             const Trajectory& motion, const cv::Mat& inverse_depth,
-                            const PixelGridOptions& po, double ratio) {
+                            const PixelGridOptions& po, double ratio, bool* at_end) {
   // The blur term does not depend on the thresholds: one problem serves every c.
   const double step = std::log(2.0) / 3;
   const PixelGridProblem problem(obs, camera, motion, inverse_depth, Contrast{1, ratio}, po);
@@ -450,6 +450,7 @@ Contrast contrastFromMotion(const Observation& obs, const PinholeCamera& camera,
   const size_t best =
       static_cast<size_t>(std::min_element(terms.begin(), terms.end()) - terms.begin());
   double l = logs[best];
+  *at_end = best == 0 || best + 1 == logs.size();
   if (best > 0 && best + 1 < logs.size()) {
     const double a = terms[best - 1], b = terms[best], c = terms[best + 1];
     const double curvature = a - 2 * b + c;
@@ -469,6 +470,7 @@ Contrast contrastFromMotion(const Observation& obs, const PinholeCamera& camera,
 struct ContrastAndMotion {
   Contrast contrast;
   ExposureMotion motion;  // registered at the candidate nearest to it (empty where that failed)
+  bool at_end = false;    // the least at an end of [0.05, 1]
 };
 ContrastAndMotion contrastFromSolves(
     const Observation& given, const PinholeCamera& camera,
@@ -524,6 +526,7 @@ ContrastAndMotion contrastFromSolves(
     }
   }
   ContrastAndMotion out;
+  out.at_end = l < lo + 1e-9 || l > hi - 1e-9;
   for (auto& [at, motion] : candidates) {
     if (std::abs(at - l) < 1e-9) out.motion = std::move(motion);
   }
@@ -536,8 +539,12 @@ ContrastAndMotion contrastFromSolves(
 }
 
 // The pixel-grid scene (pixel_grid.cc) on the registered motion (the caller runs it only where the
-// registration gave one), the image found from EDI's mid-exposure frame.
-void runPixelGrid(const Observation& given, const DeblurRequest& request, const Start& s,
+// registration gave one), the image found from EDI's mid-exposure frame. Without thresholds it
+// declines (returns false, nothing rendered) where the c it finds is at an end of its range: there
+// the motion registered at a small c has collapsed with it (EDI's frames barely move, a short
+// motion and the blurry frame itself explain the blur), which happens on smooth or weakly textured
+// scenes, and the hash field with L2-normalised events, which need no c, does better.
+bool runPixelGrid(const Observation& given, const DeblurRequest& request, const Start& s,
                   Clock::time_point start, DeblurResult& result) {
   const BenerfOptions& o = s.options;
   const PinholeCamera camera =
@@ -564,11 +571,16 @@ void runPixelGrid(const Observation& given, const DeblurRequest& request, const 
         s.measured.searched ? s.measured : measureBlur(given, std::nullopt, o.log);
     result.parameters["contrast_searched"] = m.c_on;
     const double ratio = m.c_off / m.c_on;
+    bool at_end = false;
     const double c0 = contrastFromMotion(given, camera, fit(registered.poses),
-                                         registered.inverse_depth, po, ratio)
+                                         registered.inverse_depth, po, ratio, &at_end)
                           .on;
     result.parameters["contrast_from_motion"] = c0;
+    result.parameters["contrast_at_range_end"] = at_end ? 1 : 0;
+    if (at_end) return false;
     ContrastAndMotion found = contrastFromSolves(given, camera, fit, po, ratio, c0, o, result);
+    result.parameters["contrast_at_range_end"] = found.at_end ? 1 : 0;
+    if (found.at_end) return false;
     contrast = found.contrast;
     if (found.motion.poses.empty())
       found.motion = motionFromLatentFrames(given, camera, contrast, o.log);
@@ -638,6 +650,7 @@ void runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   const SE3 over = motion.poseAt(t0).inverse() * motion.poseAt(t1);
   result.parameters["initial_rotation_deg"] =
       logSO3(over.rotation()).norm() * 180 / std::numbers::pi;
+  return true;
 }
 
 }  // namespace
@@ -649,15 +662,16 @@ DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& r
   Start s = prepare(obs, options_, result);
   const BenerfOptions& o = s.options;
   // The pixel grid needs the registered motion; without it (the rigid camera did not explain the
-  // registration) the hash field, whose training refines the trajectory.
+  // registration), or where it declines (runPixelGrid), the hash field, whose training refines the
+  // trajectory.
   result.parameters["representation_pixels"] = 0;
   if (o.field == BenerfOptions::FieldKind::kPixels && (!o.checkpoint.empty() || !o.resume.empty()))
     throw Error(
         "benerf: checkpoint and resume are for field=hash and field=mlp (the pixel grid is solved "
         "in one go)");
-  if (o.field == BenerfOptions::FieldKind::kPixels && !s.motion.poses.empty()) {
+  if (o.field == BenerfOptions::FieldKind::kPixels && !s.motion.poses.empty() &&
+      runPixelGrid(obs, request, s, start, result)) {
     result.parameters["representation_pixels"] = 1;
-    runPixelGrid(obs, request, s, start, result);
     result.timings_s["total"] = secondsSince(start);
     return result;
   }
