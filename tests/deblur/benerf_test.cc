@@ -668,6 +668,30 @@ AtMidExposure benerfAndEdi(const Observation& obs,
   return m;
 }
 
+// As on real data: contrast.txt removed, then BeNeRF at `fast` for 30 L-BFGS steps (the c is found
+// before them) and EDI with its searched c; `truth`: the thresholds that were removed.
+AtMidExposure withoutThresholds(Observation obs, double* truth) {
+  EXPECT_TRUE(obs.contrast);
+  *truth = obs.contrast ? obs.contrast->on : std::nan("");
+  obs.contrast.reset();
+  BenerfOptions o = benerfBudget("fast");
+  o.iterations = 300;
+  return benerfAndEdi(obs, o);
+}
+
+// A preset at 120 x 90 with the shake's first seed and the default exposure.
+Observation presetObservation(const std::string& preset, double blur_px, double sigma = 0) {
+  ScratchDir dir;
+  synth::SynthOptions so;
+  so.width = 120;
+  so.height = 90;
+  so.shake.blur_px = blur_px;
+  so.shake.seed = 1;
+  so.simulator.sigma = sigma;
+  synth::writeObservation(synth::makePreset(preset, {}), so, dir / "obs");
+  return loadObservation(dir / "obs");
+}
+
 // The default BeNeRF (the pixel grid on the registered motion) on natural scenes at half the
 // suite's size (16 px of blur), at `fast` (100 L-BFGS steps), against EDI with
 // the true thresholds: clearly sharper on a photograph at one depth and on the Middlebury
@@ -698,15 +722,10 @@ TEST(Benerf, PixelGridIsSharperThanEdiOnNaturalScenes) {
 // test cheap under ASan: on the gravel, where the search is right, c 0.190 and 34.8 dB against
 // 34.9.)
 TEST(Benerf, ThresholdsNotGivenAreTheScaleThatTheMotionExplains) {
-  auto natural = naturalObservation("motorcycle", 1);
+  const auto natural = naturalObservation("motorcycle", 1);
   if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
-  Observation& obs = *natural;
-  ASSERT_TRUE(obs.contrast);
-  const double truth = obs.contrast->on;
-  obs.contrast.reset();
-  BenerfOptions o = benerfBudget("fast");
-  o.iterations = 300;  // 30 L-BFGS steps: the c is found before them
-  const AtMidExposure m = benerfAndEdi(obs, o);
+  double truth = 0;
+  const AtMidExposure m = withoutThresholds(*natural, &truth);
   EXPECT_NEAR(m.benerf.parameters.at("contrast_estimated"), truth, 0.15 * truth);
   const double searched = m.edi.parameters.at("contrast_on");
   ASSERT_GT(std::abs(searched - truth), 0.5 * truth) << "EDI's search found " << searched;
@@ -721,15 +740,10 @@ TEST(Benerf, ThresholdsNotGivenAreTheScaleThatTheMotionExplains) {
 // suite's size with 30 px of blur, contrast.txt removed: measured c 0.092 from the motion, 0.202
 // after five solves (the truth is 0.2), 33.4 dB against EDI's 20.0 at its searched 0.5.
 TEST(Benerf, ThresholdsNotGivenAreRefinedByShortSolvesOfTheGrid) {
-  auto natural = naturalObservation("cameraman_grass", 1, 30);
+  const auto natural = naturalObservation("cameraman_grass", 1, 30);
   if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
-  Observation& obs = *natural;
-  ASSERT_TRUE(obs.contrast);
-  const double truth = obs.contrast->on;
-  obs.contrast.reset();
-  BenerfOptions o = benerfBudget("fast");
-  o.iterations = 300;
-  const AtMidExposure m = benerfAndEdi(obs, o);
+  double truth = 0;
+  const AtMidExposure m = withoutThresholds(*natural, &truth);
   const auto& p = m.benerf.parameters;
   ASSERT_LT(p.at("contrast_from_motion"), 0.7 * truth)
       << "the c from the motion is not low here: " << p.at("contrast_from_motion");
@@ -745,18 +759,8 @@ TEST(Benerf, ThresholdsNotGivenAreRefinedByShortSolvesOfTheGrid) {
 // removed: measured c 0.05 from the motion, the hash field 37.8 dB against EDI's 26.0 at its
 // searched c.
 TEST(Benerf, WithoutThresholdsTheGridDeclinesWhereItsCIsAtAnEndOfItsRange) {
-  ScratchDir dir;
-  synth::SynthOptions so;
-  so.width = 120;
-  so.height = 90;
-  so.shake.blur_px = 15;
-  so.shake.seed = 1;
-  synth::writeObservation(synth::makePreset("rgbd", {}), so, dir / "obs");
-  Observation obs = loadObservation(dir / "obs");
-  obs.contrast.reset();
-  BenerfOptions o = benerfBudget("fast");
-  o.iterations = 300;
-  const AtMidExposure m = benerfAndEdi(obs, o);
+  double truth = 0;
+  const AtMidExposure m = withoutThresholds(presetObservation("rgbd", 15), &truth);
   const auto& p = m.benerf.parameters;
   EXPECT_EQ(p.at("contrast_at_range_end"), 1.0)
       << "c from the motion " << p.at("contrast_from_motion");
@@ -770,15 +774,7 @@ TEST(Benerf, WithoutThresholdsTheGridDeclinesWhereItsCIsAtAnEndOfItsRange) {
 // mid-exposure alone the grid fits that drift into the text; the short windows hold the local
 // changes (measured here 26.1 -> 27.0 dB; on the noisy suite's text at 346 x 260, 28.6 -> 29.8).
 TEST(PixelGrid, ShortEventWindowsHoldThePixelsThresholdMismatch) {
-  ScratchDir dir;
-  synth::SynthOptions so;
-  so.width = 120;
-  so.height = 90;
-  so.shake.blur_px = 30;
-  so.shake.seed = 1;
-  so.simulator.sigma = 0.03;
-  synth::writeObservation(synth::makePreset("text", {}), so, dir / "obs");
-  const Observation obs = loadObservation(dir / "obs");
+  const Observation obs = presetObservation("text", 30, 0.03);
   const nerf::PinholeCamera camera = obs.camera.withSize(120, 90);
   const ExposureMotion m = motionFromLatentFrames(obs, camera, obs.contrast);
   ASSERT_FALSE(m.poses.empty());
