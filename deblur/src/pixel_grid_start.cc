@@ -1,0 +1,150 @@
+// What the pixel grid starts from: EDI's mid-exposure frame, the supported events and, without
+// thresholds, the scale c (pixel_grid_start.h).
+
+#include "pixel_grid_start.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <utility>
+
+#include "evkit/deblur/edi.h"
+#include "evkit/events/filters.h"
+
+namespace evkit::benerf_detail {
+
+// The observation with only the events that a neighbouring pixel supports within the time the
+// image takes to move `support_px` pixels (by the motion), and the share dropped.
+Observation supportedEvents(const Observation& obs, double support_px, double blur_px,
+                            DeblurResult& result) {
+  Observation out;
+  out.blurry = obs.blurry;
+  out.camera = obs.camera;
+  out.contrast = obs.contrast;
+  const int64_t exposure = obs.blurry.exposure_end_us - obs.blurry.exposure_start_us;
+  const auto window = static_cast<int64_t>(support_px * exposure / std::max(blur_px, 1.0));
+  int64_t dropped = 0;
+  out.events = filterUnsupported(obs.events.view(), window, &dropped);
+  result.parameters["events_unsupported"] =
+      obs.events.empty() ? 0.0 : static_cast<double>(dropped) / obs.events.size();
+  return out;
+}
+
+// EDI's mid-exposure frame with thresholds c.
+cv::Mat ediMidFrame(const Observation& obs, const Contrast& c) {
+  EdiOptions edi_options;
+  edi_options.use_observation_contrast = false;
+  edi_options.contrast = c;
+  DeblurRequest request;
+  request.times_us = {obs.blurry.midExposure()};
+  return EdiDeblurrer{edi_options}.run(obs, request).frames.front().image;
+}
+
+// The thresholds, when none are given, as the scale of `ratio` (c_off / c_on) whose EDI frame,
+// moved by the motion over the exposure and averaged, best re-makes the blurry frame (the grid's
+// blur term there). EDI's own search has no motion model and scores the frame's sharpness, which
+// too large a c also raises; with the motion the wrong c shows as ghosts that re-blur away from the
+// frame. A scan over [0.05, 1] in steps of 2^(1/3), then a parabola in log c through the least
+// and its neighbours; `at_end`: the least was at an end of the range.
+Contrast contrastFromMotion(const Observation& obs, const PinholeCamera& camera,
+                            const Trajectory& motion, const cv::Mat& inverse_depth,
+                            const PixelGridOptions& po, double ratio, bool* at_end) {
+  // The blur term does not depend on the thresholds: one problem serves every c.
+  const double step = std::log(2.0) / 3;
+  const PixelGridProblem problem(obs, camera, motion, inverse_depth, Contrast{1, ratio}, po);
+  std::vector<double> logs, terms;
+  for (double l = std::log(0.05); l <= std::log(1.0) + 1e-9; l += step) {
+    const double c = std::exp(l);
+    PixelGridProblem::Terms t;
+    problem.evaluate(problem.start(ediMidFrame(obs, Contrast{c, c * ratio})), nullptr, &t);
+    logs.push_back(l);
+    terms.push_back(t.blur);
+  }
+  const size_t best =
+      static_cast<size_t>(std::min_element(terms.begin(), terms.end()) - terms.begin());
+  double l = logs[best];
+  *at_end = best == 0 || best + 1 == logs.size();
+  if (best > 0 && best + 1 < logs.size()) {
+    const double a = terms[best - 1], b = terms[best], c = terms[best + 1];
+    const double curvature = a - 2 * b + c;
+    if (curvature > 0) l += 0.5 * step * (a - c) / curvature;
+  }
+  return {std::exp(l), std::exp(l) * ratio};
+}
+
+// The thresholds, when none are given, refined from `c0` (contrastFromMotion's) by the grid itself:
+// the scale of `ratio` at which the image, solved for a few steps on the motion registered at that
+// scale, best re-makes the blurry frame. At a wrong c the events ask the image for log changes
+// that the blur does not show, so the solved image re-blurs away from the frame. Each candidate
+// registers its own motion: on one motion registered at a c that is too low (where
+// contrastFromMotion's EDI frame is biased by a poor motion), the solves are biased low as well.
+// A walk in log c by steps of 2^(1/3) from c0 to the least, then a parabola through it and its
+// neighbours.
+ContrastAndMotion contrastFromSolves(
+    const Observation& given, const PinholeCamera& camera,
+    const std::function<Trajectory(const std::vector<StampedPose>&)>& fit, PixelGridOptions po,
+    double ratio, double c0, const BenerfOptions& o, DeblurResult& result) {
+  // Ten L-BFGS steps (five left nat_text_coins_blur60 at contrastFromMotion's 0.164 where the truth
+  // is 0.2) without the motion's refinement (which did not move the estimate), on at most 20
+  // views (the blur integral coarser, alike for every c).
+  constexpr int kSteps = 10;
+  po.max_views = std::max(po.min_views, 20);
+  const int64_t t0 = given.blurry.exposure_start_us, t1 = given.blurry.exposure_end_us;
+  std::vector<std::pair<double, ExposureMotion>> candidates;  // log c and its registration
+  const auto misfit = [&](double l) {
+    const Contrast contrast{std::exp(l), std::exp(l) * ratio};
+    candidates.emplace_back(l, motionFromLatentFrames(given, camera, contrast, o.log));
+    const ExposureMotion& registered = candidates.back().second;
+    if (registered.poses.empty()) return std::numeric_limits<double>::infinity();
+    const Trajectory motion = fit(registered.poses);
+    DeblurResult unused;
+    const Observation obs =
+        o.support_px > 0 ? supportedEvents(given, o.support_px,
+                                           PixelGridProblem::longestImagePath(
+                                               camera, motion, registered.inverse_depth, t0, t1),
+                                           unused)
+                         : given;
+    po.event_robust = o.mid_robust * 0.5 * (contrast.on + contrast.off);
+    const PixelGridProblem problem(obs, camera, motion, registered.inverse_depth, contrast, po);
+    std::vector<double> x = problem.start(ediMidFrame(obs, contrast));
+    PixelGridProblem::Terms terms;
+    problem.solve(x, kSteps, &terms);
+    return std::log(std::max(terms.blur, 1e-30));
+  };
+  const double lo = std::log(0.05), hi = std::log(1.0), h = std::log(2.0) / 3;
+  // Three points in log c, h apart, the middle one the least seen: walk up from c0 while the
+  // misfit falls, else down.
+  double l = std::clamp(std::log(c0), lo + h, hi - h);
+  std::array<double, 3> f{0, misfit(l), misfit(l + h)};
+  const double none = std::numeric_limits<double>::quiet_NaN();
+  if (f[2] < f[1]) {
+    do {
+      f[0] = f[1];
+      f[1] = f[2];
+      l += h;
+      f[2] = l + h <= hi + 1e-9 ? misfit(l + h) : none;
+    } while (f[2] < f[1]);
+  } else {
+    f[0] = misfit(l - h);
+    while (f[0] < f[1]) {
+      f[2] = f[1];
+      f[1] = f[0];
+      l -= h;
+      f[0] = l - h >= lo - 1e-9 ? misfit(l - h) : none;
+    }
+  }
+  ContrastAndMotion out;
+  out.at_end = l < lo + 1e-9 || l > hi - 1e-9;
+  for (auto& [at, motion] : candidates) {
+    if (std::abs(at - l) < 1e-9) out.motion = std::move(motion);
+  }
+  const double curvature = f[0] - 2 * f[1] + f[2];
+  if (std::isfinite(curvature) && curvature > 0)
+    l += std::clamp(0.5 * h * (f[0] - f[2]) / curvature, -h, h);
+  result.parameters["contrast_solves"] = static_cast<double>(candidates.size());
+  out.contrast = {std::exp(l), std::exp(l) * ratio};
+  return out;
+}
+
+}  // namespace evkit::benerf_detail

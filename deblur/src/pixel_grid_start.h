@@ -1,0 +1,43 @@
+// What the pixel grid starts from (benerf_train.cc): EDI's mid-exposure frame, the events that a
+// neighbouring pixel supports and, without thresholds, the scale c with the motion registered at
+// it.
+#pragma once
+
+#include <functional>
+#include <opencv2/core.hpp>
+#include <vector>
+
+#include "evkit/deblur/benerf.h"
+#include "evkit/deblur/deblurrer.h"
+#include "evkit/deblur/pixel_grid.h"
+
+namespace evkit::benerf_detail {
+
+// The observation with only the events that a neighbouring pixel supports within the time the
+// image takes to move `support_px` pixels (by the motion), and the share dropped in `result`.
+Observation supportedEvents(const Observation& obs, double support_px, double blur_px,
+                            DeblurResult& result);
+
+// EDI's mid-exposure frame with thresholds c.
+cv::Mat ediMidFrame(const Observation& obs, const Contrast& c);
+
+// The thresholds, when none are given, as the scale of `ratio` (c_off / c_on) whose EDI frame,
+// moved by the motion over the exposure and averaged, best re-makes the blurry frame (the grid's
+// blur term there); `at_end`: the least was at an end of the scan's range, [0.05, 1].
+Contrast contrastFromMotion(const Observation& obs, const PinholeCamera& camera,
+                            const Trajectory& motion, const cv::Mat& inverse_depth,
+                            const PixelGridOptions& po, double ratio, bool* at_end);
+
+// The thresholds refined from `c0` by short solves of the grid, each on the motion registered at
+// its own c: the c at which the solved image re-blurs closest to the frame.
+struct ContrastAndMotion {
+  Contrast contrast;
+  ExposureMotion motion;  // registered at the candidate nearest to it (empty where that failed)
+  bool at_end = false;    // the least at an end of [0.05, 1]
+};
+ContrastAndMotion contrastFromSolves(
+    const Observation& given, const PinholeCamera& camera,
+    const std::function<Trajectory(const std::vector<StampedPose>&)>& fit, PixelGridOptions po,
+    double ratio, double c0, const BenerfOptions& o, DeblurResult& result);
+
+}  // namespace evkit::benerf_detail
