@@ -14,6 +14,18 @@
 
 namespace evkit::benerf_detail {
 
+namespace {
+
+// The shift, in units of the spacing h, from the middle of three equally spaced points (a, b, c;
+// b the least) to the vertex of the parabola through them; 0 where they are not convex. Within
+// half a spacing, since b is the least.
+double vertexShift(double a, double b, double c, double h) {
+  const double curvature = a - 2 * b + c;
+  return std::isfinite(curvature) && curvature > 0 ? 0.5 * h * (a - c) / curvature : 0.0;
+}
+
+}  // namespace
+
 // The observation with only the events that a neighbouring pixel supports within the time the
 // image takes to move `support_px` pixels (by the motion), and the share dropped.
 Observation supportedEvents(const Observation& obs, double support_px, double blur_px,
@@ -65,11 +77,8 @@ Contrast contrastFromMotion(const Observation& obs, const PinholeCamera& camera,
       static_cast<size_t>(std::min_element(terms.begin(), terms.end()) - terms.begin());
   double l = logs[best];
   *at_end = best == 0 || best + 1 == logs.size();
-  if (best > 0 && best + 1 < logs.size()) {
-    const double a = terms[best - 1], b = terms[best], c = terms[best + 1];
-    const double curvature = a - 2 * b + c;
-    if (curvature > 0) l += 0.5 * step * (a - c) / curvature;
-  }
+  if (best > 0 && best + 1 < logs.size())
+    l += vertexShift(terms[best - 1], terms[best], terms[best + 1], step);
   return {std::exp(l), std::exp(l) * ratio};
 }
 
@@ -139,9 +148,7 @@ ContrastAndMotion contrastFromSolves(
   for (auto& [at, motion] : candidates) {
     if (std::abs(at - l) < 1e-9) out.motion = std::move(motion);
   }
-  const double curvature = f[0] - 2 * f[1] + f[2];
-  if (std::isfinite(curvature) && curvature > 0)
-    l += std::clamp(0.5 * h * (f[0] - f[2]) / curvature, -h, h);
+  l += vertexShift(f[0], f[1], f[2], h);
   result.parameters["contrast_solves"] = static_cast<double>(candidates.size());
   out.contrast = {std::exp(l), std::exp(l) * ratio};
   return out;
