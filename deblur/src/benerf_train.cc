@@ -27,6 +27,8 @@ using benerf_detail::contrastFromSolves;
 using benerf_detail::ediMidFrame;
 using benerf_detail::readCheckpoint;
 using benerf_detail::secondsSince;
+using benerf_detail::StartFit;
+using benerf_detail::startFit;
 using benerf_detail::supportedEvents;
 using benerf_detail::toFloat;
 using benerf_detail::writeCheckpoint;
@@ -408,6 +410,13 @@ void summarise(BenerfProblem<float>& problem, const BenerfOptions& o, int iterat
 // the motion registered at a small c has collapsed with it (EDI's frames barely move, a short
 // motion and the blurry frame itself explain the blur), which happens on smooth or weakly textured
 // scenes, and the hash field with L2-normalised events, which need no c, does better.
+// The contrast at which the grid's beta holds (the suites' C, where it was measured).
+constexpr double kBetaContrast = 0.2;
+// The share of deblurring's change (StartFit) from which the grid's misfit at the start keeps it:
+// measured on the natural, standard, noisy and hard suites (BENCHMARKS.md, "The pixel grid"), the
+// scenes where the solve ended below its start had 0.54-0.93, those where it gained 0.04-0.37.
+constexpr double kKeepStart = 0.5;
+
 bool runPixelGrid(const Observation& given, const DeblurRequest& request, const Start& s,
                   Clock::time_point start, DeblurResult& result) {
   const BenerfOptions& o = s.options;
@@ -465,6 +474,10 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
           : Observation{};
   const Observation& obs = o.support_px > 0 ? filtered : given;
   po.event_robust = o.mid_robust * 0.5 * (contrast.on + contrast.off);
+  // The event term's error is the events' quantisation, up to a threshold at each end of a
+  // comparison, so its variance grows as C^2: its weight is beta at kBetaContrast and
+  // (kBetaContrast / C)^2 beta at C (maximum likelihood; the short solves that find c keep beta).
+  po.beta *= std::pow(kBetaContrast / (0.5 * (contrast.on + contrast.off)), 2);
   PixelGridProblem problem(obs, camera, motion, inverse_depth, contrast, po);
   std::vector<double> x = problem.start(ediMidFrame(obs, contrast));
   result.timings_s["setup"] = secondsSince(start);
@@ -484,7 +497,18 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     result.curve.emplace_back(done, loss);
     if (request.progress) request.progress(done, steps, loss);
   };
-  const int iterations = problem.solve(x, steps, &terms, deadline, progress);
+  // The start is kept where the grid's model misses the blurry frame by at least half of what
+  // deblurring changes (kKeepStart): there the blur term would fit the model's own error.
+  const StartFit at_start = startFit(problem, x, obs.blurry);
+  const bool keep_start = at_start.misfit >= kKeepStart * at_start.change;
+  result.parameters["start_blur_misfit"] = at_start.misfit;
+  result.parameters["start_change"] = at_start.change;
+  result.parameters["start_kept"] = keep_start ? 1 : 0;
+  int iterations = 0;
+  if (keep_start)
+    problem.evaluate(x, nullptr, &terms);
+  else
+    iterations = problem.solve(x, steps, &terms, deadline, progress);
   result.timings_s["train"] = secondsSince(train_start);
   const auto render_start = Clock::now();
   for (int64_t t : request.times_us) {

@@ -53,6 +53,17 @@ cv::Mat ediMidFrame(const Observation& obs, const Contrast& c) {
   return EdiDeblurrer{edi_options}.run(obs, request).frames.front().image;
 }
 
+StartFit startFit(const PixelGridProblem& problem, const std::vector<double>& x,
+                  const Frame& blurry) {
+  PixelGridProblem::Terms terms;
+  problem.evaluate(x, nullptr, &terms);
+  const cv::Mat mid = problem.render(x, blurry.midExposure());
+  cv::Mat frame;
+  blurry.image.convertTo(frame, mid.type());
+  const double n = static_cast<double>(mid.total()) * mid.channels();
+  return {std::sqrt(terms.blur), cv::norm(mid, frame, cv::NORM_L2) / std::sqrt(n)};
+}
+
 // The thresholds, when none are given, as the scale of `ratio` (c_off / c_on) whose EDI frame,
 // moved by the motion over the exposure and averaged, best re-makes the blurry frame (the grid's
 // blur term there). EDI's own search has no motion model and scores the frame's sharpness, which

@@ -21,6 +21,18 @@ Observation supportedEvents(const Observation& obs, double support_px, double bl
 // EDI's mid-exposure frame with thresholds c.
 cv::Mat ediMidFrame(const Observation& obs, const Contrast& c);
 
+// How well the grid's model re-makes the blurry frame from where it starts (EDI's frame on the
+// refined motion), against how much deblurring changes it: `misfit`, the RMS of the start's
+// re-blur less the blurry frame (the blur term there), and `change`, the RMS of the start's
+// mid-exposure frame less the blurry frame. Where the misfit is a good share of the change, the
+// blur term cannot tell what deblurring changes from the model's own error (BENCHMARKS.md, "The
+// pixel grid").
+struct StartFit {
+  double misfit = 0, change = 0;
+};
+StartFit startFit(const PixelGridProblem& problem, const std::vector<double>& x,
+                  const Frame& blurry);
+
 // The thresholds, when none are given, as the scale of `ratio` (c_off / c_on) whose EDI frame,
 // moved by the motion over the exposure and averaged, best re-makes the blurry frame (the grid's
 // blur term there); `at_end`: the least was at an end of the scan's range, [0.05, 1].
