@@ -168,7 +168,7 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
         .integer("cells", &O::cells, {1, 4}, "the pixel grid's cells per pixel along each axis")
         .number("mid_robust", &O::mid_robust, {0},
                 "the pixel grid's comparison with mid-exposure is pseudo-Huber beyond this many "
-                "thresholds (0: squares)")
+                "log units (0: squares)")
         .number("support_px", &O::support_px, {0},
                 "the pixel grid keeps events with a neighbour's within this many pixels of motion "
                 "(0: all)")

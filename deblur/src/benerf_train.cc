@@ -473,7 +473,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
                 PixelGridProblem::longestImagePath(camera, motion, inverse_depth, t0, t1), result)
           : Observation{};
   const Observation& obs = o.support_px > 0 ? filtered : given;
-  po.event_robust = o.mid_robust * 0.5 * (contrast.on + contrast.off);
+  po.event_robust = o.mid_robust;
   // The event term's error is the events' quantisation, up to a threshold at each end of a
   // comparison, so its variance grows as C^2: its weight is beta at kBetaContrast and
   // (kBetaContrast / C)^2 beta at C (maximum likelihood; the short solves that find c keep beta).

@@ -125,7 +125,7 @@ ContrastAndMotion contrastFromSolves(
                                                camera, motion, registered.inverse_depth, t0, t1),
                                            unused)
                          : given;
-    po.event_robust = o.mid_robust * 0.5 * (contrast.on + contrast.off);
+    po.event_robust = o.mid_robust;
     const PixelGridProblem problem(obs, camera, motion, registered.inverse_depth, contrast, po);
     std::vector<double> x = problem.start(ediMidFrame(obs, contrast));
     PixelGridProblem::Terms terms;

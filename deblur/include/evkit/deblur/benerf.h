@@ -58,11 +58,14 @@ struct BenerfOptions {
   // takes to move this many pixels (filterUnsupported, evkit/events/filters.h), so that shot noise
   // is not fitted as texture; 0: every event.
   double support_px = 2;
-  // The pixel grid compares each view with mid-exposure by the pseudo-Huber penalty with this many
-  // thresholds as its scale (PixelGridOptions::event_robust; 0: squares). At 2 (BENCHMARKS.md):
-  // noisy suite 33.57 -> 34.62 dB and natural 34.92 -> 35.10, but standard 36.15 -> 35.72
-  // (rgbd_blur15 35.17 -> 32.38, where the depth model's misfit is real), so not the default.
-  double mid_robust = 0;
+  // The pixel grid compares each view with mid-exposure by the pseudo-Huber penalty with this
+  // scale in log units (PixelGridOptions::event_robust; 0: squares). A real pixel's ON and OFF
+  // thresholds differ from the nominal, so its events drift from its log change by a share of the
+  // change it has crossed (not a multiple of C), and that drift grows with the time from
+  // mid-exposure. Measured against squares at `fast` (BENCHMARKS.md, "The pixel grid"): noisy
+  // suite 33.72 -> 34.84 dB, natural 34.97 -> 35.14 (every noisy scene up), hard_noisy 27.28 ->
+  // 30.69; standard 36.26 -> 36.11. Scaled with C (2C) instead, hard_dense (C = 0.08) lost 0.4 dB.
+  double mid_robust = 0.4;
   nerf::HashFieldConfig
       hash;  // levels, features, table; finest resolution adapted to the image when 0
   int finest_resolution = 0;  // 0: the image's larger side
