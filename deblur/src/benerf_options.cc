@@ -108,7 +108,7 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
         .number("alpha", &O::alpha, unit_open, "event window, a fraction of the exposure")
         .number("beta", &O::beta, {},
                 "weight of the event term (< 0: by the event term's form: 0.1 direct, 2 per 1,024 "
-                "event pixels normalised)")
+                "event pixels normalised; the pixel grid 0.01, at C = 0.2, scaled by (0.2 / C)^2)")
         .choice("normalise", &O::event_form,
                 {{"auto", O::EventForm::kAuto},
                  {"1", O::EventForm::kNormalised},
