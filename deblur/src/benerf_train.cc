@@ -404,12 +404,6 @@ void summarise(BenerfProblem<float>& problem, const BenerfOptions& o, int iterat
   if (last_blur > 0) result.parameters["blur_fit_psnr"] = -10 * std::log10(last_blur);
 }
 
-// The pixel-grid scene (pixel_grid.cc) on the registered motion (the caller runs it only where the
-// registration gave one), the image found from EDI's mid-exposure frame. Without thresholds it
-// declines (returns false, nothing rendered) where the c it finds is at an end of its range: there
-// the motion registered at a small c has collapsed with it (EDI's frames barely move, a short
-// motion and the blurry frame itself explain the blur), which happens on smooth or weakly textured
-// scenes, and the hash field with L2-normalised events, which need no c, does better.
 // The contrast at which the grid's beta holds (the suites' C, where it was measured).
 constexpr double kBetaContrast = 0.2;
 // The share of deblurring's change (StartFit) from which the grid's misfit at the start keeps it:
@@ -417,6 +411,12 @@ constexpr double kBetaContrast = 0.2;
 // scenes where the solve ended below its start had 0.54-0.93, those where it gained 0.04-0.37.
 constexpr double kKeepStart = 0.5;
 
+// The pixel-grid scene (pixel_grid.cc) on the registered motion (the caller runs it only where the
+// registration gave one), the image found from EDI's mid-exposure frame. Without thresholds it
+// declines (returns false, nothing rendered) where the c it finds is at an end of its range: there
+// the motion registered at a small c has collapsed with it (EDI's frames barely move, a short
+// motion and the blurry frame itself explain the blur), which happens on smooth or weakly textured
+// scenes, and the hash field with L2-normalised events, which need no c, does better.
 bool runPixelGrid(const Observation& given, const DeblurRequest& request, const Start& s,
                   Clock::time_point start, DeblurResult& result) {
   const BenerfOptions& o = s.options;
@@ -506,7 +506,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   result.parameters["start_kept"] = keep_start ? 1 : 0;
   int iterations = 0;
   if (keep_start)
-    problem.evaluate(x, nullptr, &terms);
+    terms = at_start.terms;
   else
     iterations = problem.solve(x, steps, &terms, deadline, progress);
   result.timings_s["train"] = secondsSince(train_start);

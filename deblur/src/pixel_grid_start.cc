@@ -55,13 +55,15 @@ cv::Mat ediMidFrame(const Observation& obs, const Contrast& c) {
 
 StartFit startFit(const PixelGridProblem& problem, const std::vector<double>& x,
                   const Frame& blurry) {
-  PixelGridProblem::Terms terms;
-  problem.evaluate(x, nullptr, &terms);
+  StartFit fit;
+  problem.evaluate(x, nullptr, &fit.terms);
   const cv::Mat mid = problem.render(x, blurry.midExposure());
   cv::Mat frame;
   blurry.image.convertTo(frame, mid.type());
   const double n = static_cast<double>(mid.total()) * mid.channels();
-  return {std::sqrt(terms.blur), cv::norm(mid, frame, cv::NORM_L2) / std::sqrt(n)};
+  fit.misfit = std::sqrt(fit.terms.blur);
+  fit.change = cv::norm(mid, frame, cv::NORM_L2) / std::sqrt(n);
+  return fit;
 }
 
 // The thresholds, when none are given, as the scale of `ratio` (c_off / c_on) whose EDI frame,

@@ -26,9 +26,10 @@ cv::Mat ediMidFrame(const Observation& obs, const Contrast& c);
 // re-blur less the blurry frame (the blur term there), and `change`, the RMS of the start's
 // mid-exposure frame less the blurry frame. Where the misfit is a good share of the change, the
 // blur term cannot tell what deblurring changes from the model's own error (BENCHMARKS.md, "The
-// pixel grid").
+// pixel grid"). `terms`: the loss's terms there.
 struct StartFit {
   double misfit = 0, change = 0;
+  PixelGridProblem::Terms terms;
 };
 StartFit startFit(const PixelGridProblem& problem, const std::vector<double>& x,
                   const Frame& blurry);
