@@ -7,6 +7,7 @@
 
 #include "common.h"
 #include "evkit/base/error.h"
+#include "evkit/events/calibration.h"
 #include "evkit/synth/generator.h"
 
 namespace evkit::cli {
@@ -48,6 +49,9 @@ int runSynth(const Args& args) {
       "preroll-us", po::value<int64_t>()->default_value(0),
       "simulate events from this long before the exposure (real reference levels)")(
       "photos", po::value<std::string>(), "natural scenes: folder of the photographs")(
+      "calib", po::value<std::string>(),
+      "the camera to render with, lens distortion included (calib.txt: fx fy cx cy [k1 k2 p1 "
+      "p2 [k3]]); else fx = 0.9 width at the centre")(
       "recording", po::bool_switch(),
       "a recording instead of one observation: OUT/recording.aedat4 and .h5 with several blurry "
       "frames and the continuous events between them, calib.txt, contrast.txt, gt/")(
@@ -99,6 +103,7 @@ int runSynth(const Args& args) {
       !(o.simulator.leak_rate_hz >= 0)) {
     throw UsageError("--sigma, --shot-noise-hz and --leak-hz must not be negative");
   }
+  if (vm.count("calib")) o.camera = readCalibration(vm["calib"].as<std::string>());
   SceneOptions so;
   so.colour = vm["colour"].as<bool>();
   so.seed = o.shake.seed;

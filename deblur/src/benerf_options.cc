@@ -169,6 +169,9 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
         .number("mid_robust", &O::mid_robust, {0},
                 "the pixel grid's comparison with mid-exposure is pseudo-Huber beyond this many "
                 "log units (0: squares)")
+        .flag("calibrate", &O::calibrate,
+              "without a calibration (no calib.txt), estimate the lens's radial distortion k1 "
+              "from the registered motion")
         .number("support_px", &O::support_px, {0},
                 "the pixel grid keeps events with a neighbour's within this many pixels of motion "
                 "(0: all)")

@@ -72,6 +72,7 @@ struct Start {
   int views = 0;
   double blur_px = 0;
   ExposureMotion motion;        // init=frames
+  PinholeCamera camera;         // given, assumed, or estimated (calibrateFromLatentFrames)
   bool contrast_given = false;  // by the settings or contrast.txt, not estimated
   BlurMeasurement measured;     // EDI's pass: the blur length and, without thresholds, its search
 };
@@ -87,7 +88,7 @@ void reportMotion(const ExposureMotion& motion, DeblurResult& result) {
 }
 
 Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& result) {
-  Start s{given, given.virtual_views, 0, {}, false, {}};
+  Start s{given, given.virtual_views, 0, {}, obs.camera, false, {}};
   BenerfOptions& o = s.options;
   o.contrast = resolveContrast(o.contrast, obs);
   s.contrast_given = o.contrast.has_value();
@@ -105,8 +106,17 @@ Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& 
   }
   if (s.views <= 0) s.views = virtualViewsFor(s.blur_px);
   if (o.init == BenerfOptions::Init::kFrames || o.field == BenerfOptions::FieldKind::kPixels) {
-    const PinholeCamera camera = obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows);
-    s.motion = motionFromLatentFrames(obs, camera, o.contrast, o.log);
+    PinholeCamera camera = obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows);
+    if (obs.camera_assumed && o.calibrate && o.field == BenerfOptions::FieldKind::kPixels) {
+      CalibratedMotion c = calibrateFromLatentFrames(obs, camera, o.contrast, o.log);
+      camera = s.camera = c.camera;
+      s.motion = std::move(c.motion);
+      result.parameters["camera_estimated"] = c.estimated ? 1 : 0;
+      result.parameters["camera_residual_assumed_px"] = c.residual_assumed_px;
+      result.parameters["cameras_tried"] = c.cameras_tried;
+    } else {
+      s.motion = motionFromLatentFrames(obs, camera, o.contrast, o.log);
+    }
     // The pixel grid without thresholds: where the registration at EDI's searched c fails (its
     // search scores sharpness, which a c too large raises too, and EDI's frames then carry ghost
     // edges that the flow cannot follow), at c's below it by steps of 2^(1/3) to a quarter, the
@@ -543,12 +553,23 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
 
 }  // namespace
 
-DeblurResult BenerfDeblurrer::run(const Observation& obs, const DeblurRequest& request) {
+DeblurResult BenerfDeblurrer::run(const Observation& given, const DeblurRequest& request) {
   const auto start = Clock::now();
   DeblurResult result;
   const ThreadScope threads(options_.threads);
-  Start s = prepare(obs, options_, result);
+  Start s = prepare(given, options_, result);
   const BenerfOptions& o = s.options;
+  // Every later step sees the camera the run uses (an estimated one replaces the assumed).
+  std::optional<Observation> calibrated;
+  if (const auto e = result.parameters.find("camera_estimated");
+      e != result.parameters.end() && e->second == 1) {
+    calibrated = given;
+    calibrated->camera = s.camera;
+  }
+  const Observation& obs = calibrated ? *calibrated : given;
+  result.parameters["camera_given"] = given.camera_assumed ? 0 : 1;
+  result.parameters["camera_fx"] = obs.camera.fx;
+  result.parameters["camera_k1"] = obs.camera.distortion.empty() ? 0 : obs.camera.distortion[0];
   // The pixel grid needs the registered motion; without it (the rigid camera did not explain the
   // registration), or where it declines (runPixelGrid), the hash field, whose training refines the
   // trajectory.

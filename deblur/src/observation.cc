@@ -42,7 +42,8 @@ std::vector<double> readNumbers(const std::string& path, size_t min_count, size_
 Observation loadObservation(const std::string& dir) {
   if (!fs::is_directory(dir))
     throwInFile(
-        dir, "not an observation folder (expected blurry.png, exposure.txt, events.*, calib.txt)");
+        dir,
+        "not an observation folder (expected blurry.png, exposure.txt, events.*, [calib.txt])");
   Observation obs;
   obs.source = dir;
   obs.blurry = readImageFile((fs::path(dir) / "blurry.png").string());
@@ -74,7 +75,13 @@ Observation loadObservation(const std::string& dir) {
   obs.events = rec.events;
   obs.events.setSensor(SensorSize{obs.blurry.image.cols, obs.blurry.image.rows});
   validate(obs.events.view(), events_path);
-  obs.camera = readCalibration((fs::path(dir) / "calib.txt").string());
+  const fs::path calib = fs::path(dir) / "calib.txt";
+  if (fs::exists(calib)) {
+    obs.camera = readCalibration(calib.string());
+  } else {
+    obs.camera = Calibration::assumed(obs.blurry.image.cols, obs.blurry.image.rows);
+    obs.camera_assumed = true;
+  }
   const fs::path contrast = fs::path(dir) / "contrast.txt";
   if (fs::exists(contrast)) {
     const std::vector<double> c = readNumbers(contrast.string(), 1, 2, "'C_on C_off' or 'C'");
@@ -115,7 +122,7 @@ void saveObservation(const Observation& obs, const std::string& dir) {
   Recording rec;
   rec.events = obs.events;
   writeRecording(tmp + "/events.h5", rec);
-  writeCalibration(tmp + "/calib.txt", obs.camera);
+  if (!obs.camera_assumed) writeCalibration(tmp + "/calib.txt", obs.camera);
   if (obs.contrast)
     std::ofstream(tmp + "/contrast.txt") << obs.contrast->on << ' ' << obs.contrast->off << '\n';
   out.commit();
@@ -151,6 +158,7 @@ Observation observationFromRecording(const std::string& path, size_t index, int6
                                       obs.blurry.exposure_end_us + margin_us + 1);
   obs.events = rec.events;
   obs.events.setSensor(SensorSize{obs.blurry.image.cols, obs.blurry.image.rows});
+  obs.camera_assumed = !rec.info.calibration;
   obs.camera = rec.info.calibration
                    ? *rec.info.calibration
                    : Calibration::assumed(obs.blurry.image.cols, obs.blurry.image.rows);

@@ -195,6 +195,7 @@ Observation frameObservation(const RecordingJob& job, const JobInputs& in, const
     obs.events = std::move(rec.events);
   }
   obs.events.setSensor(sensor);
+  obs.camera_assumed = !in.calib && !rec.info.calibration;
   obs.camera = (in.calib               ? *in.calib
                 : rec.info.calibration ? *rec.info.calibration
                                        : Calibration::assumed(sensor.width, sensor.height))

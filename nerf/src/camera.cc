@@ -4,37 +4,14 @@
 
 namespace evkit::nerf {
 
-namespace {
-// Distorts normalised coordinates (x, y) with k1 k2 p1 p2 k3.
-Eigen::Vector2d distort(const std::vector<double>& k, double x, double y) {
-  const double k1 = k.size() > 0 ? k[0] : 0, k2 = k.size() > 1 ? k[1] : 0,
-               p1 = k.size() > 2 ? k[2] : 0, p2 = k.size() > 3 ? k[3] : 0,
-               k3 = k.size() > 4 ? k[4] : 0;
-  const double r2 = x * x + y * y;
-  const double radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3));
-  return {x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
-          y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y};
-}
-}  // namespace
-
 Vector3 pixelDirection(const PinholeCamera& camera, double u, double v) {
-  const double xd = (u - camera.cx) / camera.fx, yd = (v - camera.cy) / camera.fy;
-  if (camera.distortion.empty()) return Vector3(xd, yd, 1.0);
-  // Fixed point: x = xd - (distort(x) - x).
-  double x = xd, y = yd;
-  for (int it = 0; it < 20; ++it) {
-    const Eigen::Vector2d d = distort(camera.distortion, x, y);
-    x = xd - (d.x() - x);
-    y = yd - (d.y() - y);
-  }
-  return Vector3(x, y, 1.0);
+  const std::array<double, 2> n = normalisedOfPixel(camera, u, v);
+  return Vector3(n[0], n[1], 1.0);
 }
 
 Eigen::Vector2d projectPoint(const PinholeCamera& camera, const Vector3& p) {
-  const Eigen::Vector2d n = camera.distortion.empty()
-                                ? Eigen::Vector2d(p.x() / p.z(), p.y() / p.z())
-                                : distort(camera.distortion, p.x() / p.z(), p.y() / p.z());
-  return {camera.fx * n.x() + camera.cx, camera.fy * n.y() + camera.cy};
+  const std::array<double, 2> q = pixelOfNormalised(camera, p.x() / p.z(), p.y() / p.z());
+  return {q[0], q[1]};
 }
 
 Ray worldRay(const PinholeCamera& camera, const SE3& T, double u, double v) {

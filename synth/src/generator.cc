@@ -101,14 +101,13 @@ double blurLengthPx(const Trajectory& trajectory, const Scene& scene, const Cali
       const int x = (gx + 1) * width / 9, y = (gy + 1) * height / 7;
       const float z = depth.at<float>(y, x);
       if (z <= 0) continue;
-      const Vector3 X =
-          T_mid * (z * Vector3((x - camera.cx) / camera.fx, (y - camera.cy) / camera.fy, 1.0));
+      const Vector3 X = T_mid * (z * cameraDirection(camera, x, y));
       double length = 0;
       Eigen::Vector2d prev;
       for (int k = 0; k <= kSteps; ++k) {
         const Vector3 p = trajectory.evaluate(static_cast<double>(k) / kSteps).inverse() * X;
-        const Eigen::Vector2d uv(camera.fx * p.x() / p.z() + camera.cx,
-                                 camera.fy * p.y() / p.z() + camera.cy);
+        const std::array<double, 2> q = pixelOfNormalised(camera, p.x() / p.z(), p.y() / p.z());
+        const Eigen::Vector2d uv(q[0], q[1]);
         if (k > 0) length += (uv - prev).norm();
         prev = uv;
       }
@@ -179,8 +178,12 @@ Trajectory makeShake(const Scene& scene, const Calibration& camera, int width, i
   return scaled(with_scales(s_r, s_t), 1.0, t_begin, t_end);
 }
 
+Calibration cameraOf(const SynthOptions& o) {
+  return o.camera ? *o.camera : defaultCamera(o.width, o.height);
+}
+
 SynthReport writeObservation(const Scene& scene, const SynthOptions& o, const std::string& dir) {
-  const Calibration camera = defaultCamera(o.width, o.height);
+  const Calibration camera = cameraOf(o);
   const int64_t t0 = o.t_begin_us, t1 = o.t_begin_us + o.exposure_us;
   const Trajectory traj = makeShake(scene, camera, o.width, o.height, t0, t1, o.shake);
   SynthReport report;
@@ -264,7 +267,7 @@ RecordingReport writeSyntheticRecording(const Scene& scene, const SynthOptions& 
                                         const RecordingOptions& r, const std::string& dir) {
   if (r.frames < 1 || r.frame_interval_us <= o.exposure_us)
     throw Error("a recording needs at least one frame, and frames further apart than the exposure");
-  const Calibration camera = defaultCamera(o.width, o.height);
+  const Calibration camera = cameraOf(o);
   const int64_t t0 = o.t_begin_us;
   const int64_t t_end = t0 + (r.frames - 1) * r.frame_interval_us + o.exposure_us;
   // One shake through the whole recording, as smooth as a single observation's: one spline

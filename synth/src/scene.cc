@@ -309,7 +309,7 @@ cv::Mat render(const Scene& scene, const Calibration& camera, int width, int hei
         for (int sx = 0; sx < ss; ++sx) {
           // Sub-pixel sample positions centred on the pixel centre.
           const double u = x + (sx + 0.5) / ss - 0.5, v = y + (sy + 0.5) / ss - 0.5;
-          const Vector3 d_cam((u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1.0);
+          const Vector3 d_cam = cameraDirection(camera, u, v);
           cv::Vec3f colour;
           nearest(scene, o, R * d_cam, colour);
           acc += colour;
@@ -317,8 +317,8 @@ cv::Mat render(const Scene& scene, const Calibration& camera, int width, int hei
       }
       acc /= static_cast<float>(ss * ss);
       if (depth)
-        depth->at<float>(y, x) = static_cast<float>(firstHit(
-            scene, o, R * Vector3((x - camera.cx) / camera.fx, (y - camera.cy) / camera.fy, 1.0)));
+        depth->at<float>(y, x) =
+            static_cast<float>(firstHit(scene, o, R * cameraDirection(camera, x, y)));
       if (channels == 1) {
         out.at<float>(y, x) = 0.114f * acc[0] + 0.587f * acc[1] +
                               0.299f * acc[2];  // BT.601 (equal channels: identity)

@@ -66,6 +66,11 @@ struct BenerfOptions {
   // suite 33.72 -> 34.84 dB, natural 34.97 -> 35.14 (every noisy scene up), hard_noisy 27.28 ->
   // 30.69; standard 36.26 -> 36.11. Scaled with C (2C) instead, hard_dense (C = 0.08) lost 0.4 dB.
   double mid_robust = 0.4;
+  // Where no calibration is given (Observation::camera_assumed), the pixel grid's registration
+  // estimates the lens's radial distortion (calibrateFromLatentFrames) and every later step uses
+  // that camera; the summary says which camera was used (camera_given, camera_estimated,
+  // camera_fx, camera_k1).
+  bool calibrate = true;
   nerf::HashFieldConfig
       hash;  // levels, features, table; finest resolution adapted to the image when 0
   int finest_resolution = 0;  // 0: the image's larger side
@@ -232,6 +237,28 @@ struct ExposureMotion {
 ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamera& camera,
                                       const std::optional<Contrast>& contrast,
                                       const LogMapping& log = {});
+
+// The camera where no calibration was given: the radial distortion k1 (OpenCV's model, k2 = p1 =
+// p2 = 0) that lets the rigid camera explain the points tracked between EDI's latent frames best
+// (the per-tile depth model's RMS residual), over the barrel ladder below, and the motion
+// registered through it. Lens distortion is not a projective map, so no rigid motion of a pinhole
+// camera explains it: on a wide lens a rotation moves the image's corners less than its centre.
+// The assumed camera stays unless a k1 takes away kLensGain of the residual. The focal length is
+// kept: one exposure's motion hardly tells it, and on the wide lenses measured (fx 0.72 width;
+// BENCHMARKS.md, "Without a calibration") a search over 0.6-1.5 times the assumed one kept the
+// assumed one.
+inline constexpr double kLensK1[] = {0, -0.1, -0.2, -0.3, -0.4, -0.5};
+inline constexpr double kLensGain = 0.05;
+struct CalibratedMotion {
+  PinholeCamera camera;
+  ExposureMotion motion;
+  bool estimated = false;  // a candidate won over the assumed camera
+  double residual_assumed_px = 0;
+  int cameras_tried = 0;
+};
+CalibratedMotion calibrateFromLatentFrames(const Observation& obs, const PinholeCamera& assumed,
+                                           const std::optional<Contrast>& contrast,
+                                           const LogMapping& log = {});
 
 // One optimisation problem: the observation's data, the field and the trajectory. Templated on the
 // scalar so that the whole pipeline can be checked against finite differences in double.

@@ -24,6 +24,9 @@ struct Observation {
   Frame blurry;  // image + exposure_start_us / exposure_end_us + bit depth
   EventStore events;
   Calibration camera;
+  // No calibration was given (no calib.txt, a recording without one): camera is
+  // Calibration::assumed, which a method may refine from the data.
+  bool camera_assumed = false;
   std::optional<Contrast> contrast;  // when known (contrast.txt)
   // Ground truth (synthetic data): sharp frames (their exposure_start_us is their time) and poses.
   std::vector<Frame> gt_frames;
@@ -32,8 +35,9 @@ struct Observation {
   std::string source;                // where it came from, for reports
 };
 
-// Reads an observation folder: blurry.png, exposure.txt, events.{h5,txt,aedat4,...}, calib.txt,
-// optional contrast.txt and gt/. Throws evkit::Error naming the missing or bad file.
+// Reads an observation folder: blurry.png, exposure.txt, events.{h5,txt,aedat4,...}, optional
+// calib.txt (else the camera is assumed), optional contrast.txt and gt/. Throws evkit::Error naming
+// the missing or bad file.
 Observation loadObservation(const std::string& dir);
 
 // Writes one (for `evkit deblur --recording ... --extract DIR`), atomically.

@@ -23,6 +23,7 @@
 // `baseline`), seen from the origin with intrinsics fx fy cx cy (default: 0.9 width, centred).
 #pragma once
 
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -109,7 +110,13 @@ struct SynthOptions {
   // its last event left it, as on a real camera, not the exposure's first frame. Only the events
   // inside the exposure are written.
   int64_t preroll_us = 0;
+  // The camera that renders the scene (and is written to calib.txt): the lens a recording was
+  // made with, radial-tangential distortion included. Unset: defaultCamera.
+  std::optional<Calibration> camera;
 };
+
+// The camera options render with: options.camera, else defaultCamera.
+Calibration cameraOf(const SynthOptions& options);
 
 struct SynthReport {
   double blur_px = 0;

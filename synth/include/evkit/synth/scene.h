@@ -8,6 +8,7 @@
 // image with a depth map, seen from the identity pose, ray-marched along each ray).
 #pragma once
 
+#include <array>
 #include <memory>
 #include <opencv2/core.hpp>
 #include <optional>
@@ -80,6 +81,12 @@ struct Scene {
   void addBox(const Vector3& center, const Vector3& size, const Vector3& rotation,
               const std::shared_ptr<const Texture>& texture);
 };
+
+// The camera-frame direction (z = 1) that pixel (u, v) sees, through the camera's lens distortion.
+inline Vector3 cameraDirection(const Calibration& camera, double u, double v) {
+  const std::array<double, 2> n = normalisedOfPixel(camera, u, v);
+  return Vector3(n[0], n[1], 1.0);
+}
 
 struct RenderOptions {
   int supersample = 2;  // k x k rays per pixel, averaged (anti-aliasing)
