@@ -66,6 +66,7 @@ PyObservation makeObservation(py::handle blurry, std::pair<int64_t, int64_t> exp
   obs->events = *eventsFrom(events, sensor, "events");
   obs->camera = calib.is_none() ? synth::defaultCamera(sensor.width, sensor.height)
                                 : cameraFromPython(calib).withSize(sensor.width, sensor.height);
+  obs->camera_assumed = calib.is_none();
   if (!contrast.is_none()) obs->contrast = contrastFromPython(contrast);
   obs->source = "python";
   return {obs};
@@ -309,11 +310,12 @@ the ground truth when there is some.)")
            py::arg("calib") = py::none(), py::arg("contrast") = py::none(),
            R"(From arrays: blurry (H, W) or (H, W, 3) RGB, float linear [0, 1] or uint8/uint16;
 exposure (start_us, end_us); events as evkit.write takes them (inside the image); calib a dict
-{fx, fy, cx, cy[, distortion]} or (fx, fy, cx, cy[, k1, k2, p1, p2[, k3]]), default fx = fy =
-0.9 width at the centre; contrast C or (C_on, C_off) when known.)")
+{fx, fy, cx, cy[, distortion]} or (fx, fy, cx, cy[, k1, k2, p1, p2[, k3]]), else assumed (fx =
+fy = 0.9 width at the centre; BeNeRF then estimates the lens's k1); contrast C or (C_on, C_off)
+when known.)")
       .def_static("load", &loadFolder, py::arg("folder"),
-                  "Reads an observation folder (blurry.png, exposure.txt, events, calib.txt, "
-                  "contrast.txt, gt/).")
+                  "Reads an observation folder (blurry.png, exposure.txt, events, optional "
+                  "calib.txt and contrast.txt, gt/).")
       .def(
           "save",
           [](const PyObservation& o, const fs::path& folder) {
@@ -339,6 +341,9 @@ exposure (start_us, end_us); events as evkit.write takes them (inside the image)
       .def_property_readonly(
           "calib", [](const PyObservation& o) { return cameraToPython(o.obs->camera); },
           "The camera: {fx, fy, cx, cy, distortion, width, height}")
+      .def_property_readonly(
+          "camera_assumed", [](const PyObservation& o) { return o.obs->camera_assumed; },
+          "True where no calibration was given (calib is then the assumed camera)")
       .def_property_readonly(
           "contrast",
           [](const PyObservation& o) -> py::object {

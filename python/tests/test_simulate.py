@@ -55,6 +55,13 @@ def test_observation_from_arrays(tmp_path):
     obs.save(tmp_path / "saved")
     back = evkit.Observation.load(tmp_path / "saved")
     np.testing.assert_allclose(back.blurry, src.blurry, atol=1 / 65535)
+    assert not obs.camera_assumed and not back.camera_assumed
+    # No calibration: the camera is assumed, and a saved folder holds no calib.txt for it.
+    bare = evkit.Observation(src.blurry, src.exposure, ev)
+    assert bare.camera_assumed and bare.calib["fx"] == pytest.approx(0.9 * 48)
+    bare.save(tmp_path / "bare")
+    assert not (tmp_path / "bare" / "calib.txt").exists()
+    assert evkit.Observation.load(tmp_path / "bare").camera_assumed
     with pytest.raises(evkit.Error, match="outside the 20x20 sensor"):
         evkit.Observation(np.zeros((20, 20), np.float32), src.exposure, ev)
     with pytest.raises(evkit.Error, match="end > start"):
