@@ -169,6 +169,8 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
         .number("mid_robust", &O::mid_robust, {0},
                 "the pixel grid's comparison with mid-exposure is pseudo-Huber beyond this many "
                 "log units (0: squares)")
+        .number("chroma_smooth", &O::chroma_smooth, {0},
+                "the pixel grid's smoothness of the chroma between neighbouring cells (colour)")
         .flag("calibrate", &O::calibrate,
               "without a calibration (no calib.txt), estimate the lens's radial distortion k1 "
               "from the registered motion")

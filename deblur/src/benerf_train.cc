@@ -444,6 +444,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   po.log = o.log;
   po.subdivision = o.cells;
   po.event_window = o.alpha;
+  po.chroma_smoothness = o.chroma_smooth;
   // Without thresholds: the scale that the registered motion explains best, refined by short
   // solves of the grid, and the motion registered between EDI's frames at the nearest candidate.
   Contrast contrast;

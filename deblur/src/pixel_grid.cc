@@ -380,33 +380,55 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
   // The threads' gradients added, through the log mapping to the unknowns, and the smoothness of
   // the log image between neighbouring cells (sub-pixel detail only where the data asks for it),
   // each cell's share of the squared differences to its right and lower neighbours and its
-  // gradient from all four.
+  // gradient from all four. In colour the chroma (each channel's log less the channels' mean) is
+  // smoothed more (chroma_smoothness): the events see brightness only, so nothing but the blur
+  // term holds it.
   const double scale = options_.smoothness / static_cast<double>(u.size());
+  const double chroma = C > 1 ? options_.chroma_smoothness / static_cast<double>(u.size()) : 0.0;
   const auto row = static_cast<size_t>(canvas_w_) * C;
+  // The penalty's derivative with respect to the difference u[b + c] - u[a + c] of two
+  // neighbouring cells a and b, in each channel; adds the penalty to `sum`.
+  const auto pair = [&](size_t a, size_t b, double* d_pair, double& sum) {
+    double mean = 0;
+    for (int c = 0; c < C; ++c) mean += (u[b + c] - u[a + c]) / C;
+    for (int c = 0; c < C; ++c) {
+      const double d = u[b + c] - u[a + c], k = d - mean;
+      sum += scale * d * d + chroma * k * k;
+      d_pair[c] = 2 * scale * d + 2 * chroma * k;
+    }
+  };
   const double smooth = orderedSum(canvas_h_, [&](std::ptrdiff_t j) {
     double smooth_row = 0;
+    double d_pair[3];
     for (int i = 0; i < canvas_w_; ++i) {
-      for (int c = 0; c < C; ++c) {
-        const size_t a = (static_cast<size_t>(j) * canvas_w_ + i) * C + c;
-        double d_smooth = 0;
-        if (scale > 0) {
-          if (i + 1 < canvas_w_) {
-            const double d = u[a + C] - u[a];
-            smooth_row += scale * d * d;
-            d_smooth -= 2 * scale * d;
-          }
-          if (j + 1 < canvas_h_) {
-            const double d = u[a + row] - u[a];
-            smooth_row += scale * d * d;
-            d_smooth -= 2 * scale * d;
-          }
-          if (i > 0) d_smooth += 2 * scale * (u[a] - u[a - C]);
-          if (j > 0) d_smooth += 2 * scale * (u[a] - u[a - row]);
+      const size_t a = (static_cast<size_t>(j) * canvas_w_ + i) * C;
+      double d_smooth[3] = {0, 0, 0};
+      if (scale > 0 || chroma > 0) {
+        // The right and lower neighbours' pairs (this row's share of the sum), and the left and
+        // upper ones' (their gradient reaches this cell too).
+        if (i + 1 < canvas_w_) {
+          pair(a, a + C, d_pair, smooth_row);
+          for (int c = 0; c < C; ++c) d_smooth[c] -= d_pair[c];
         }
-        if (!gradient) continue;
+        if (j + 1 < canvas_h_) {
+          pair(a, a + row, d_pair, smooth_row);
+          for (int c = 0; c < C; ++c) d_smooth[c] -= d_pair[c];
+        }
+        double unused = 0;
+        if (i > 0) {
+          pair(a - C, a, d_pair, unused);
+          for (int c = 0; c < C; ++c) d_smooth[c] += d_pair[c];
+        }
+        if (j > 0) {
+          pair(a - row, a, d_pair, unused);
+          for (int c = 0; c < C; ++c) d_smooth[c] += d_pair[c];
+        }
+      }
+      if (!gradient) continue;
+      for (int c = 0; c < C; ++c) {
         double sum = 0;
-        for (const auto& p : partial) sum += p[a];
-        (*gradient)[a] = sum * slope[a] + d_smooth;
+        for (const auto& p : partial) sum += p[a + c];
+        (*gradient)[a + c] = sum * slope[a + c] + d_smooth[c];
       }
     }
     return smooth_row;

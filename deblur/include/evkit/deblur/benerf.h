@@ -66,6 +66,14 @@ struct BenerfOptions {
   // suite 33.72 -> 34.84 dB, natural 34.97 -> 35.14 (every noisy scene up), hard_noisy 27.28 ->
   // 30.69; standard 36.26 -> 36.11. Scaled with C (2C) instead, hard_dense (C = 0.08) lost 0.4 dB.
   double mid_robust = 0.4;
+  // The pixel grid's smoothness of the chroma in colour (PixelGridOptions::chroma_smoothness). The
+  // events see brightness only, so the chroma is held by the blur term alone, which leaves its fine
+  // detail free: on a photograph of bricks through a wide lens the grid's brightness was 0.9 dB
+  // ahead of EDI's and its chroma 8.6 dB behind (fringes along every edge). Measured at `fast` on
+  // eleven colour observations (BENCHMARKS.md, "The pixel grid"): 0 -> 0.03 raised every one but
+  // one (unchanged) by 0.5-1.6 dB; 0.1 and above lost again where the scene has strong colour
+  // edges (the astronaut's suit, the motorcycle).
+  double chroma_smooth = 0.03;
   // Where no calibration is given (Observation::camera_assumed), the pixel grid's registration
   // estimates the lens's radial distortion (calibrateFromLatentFrames) and every later step uses
   // that camera; the summary says which camera was used (camera_given, camera_estimated,

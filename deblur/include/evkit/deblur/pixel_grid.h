@@ -23,6 +23,9 @@ struct PixelGridOptions {
   int min_views = 8, max_views = 64;
   int subdivision = 1;       // cells per pixel along each axis
   double smoothness = 1e-2;  // weight of the squared log differences between neighbouring cells
+  // In colour, the weight of the same for the chroma (each channel's log less the mean of the
+  // channels' logs), over `smoothness`: the events see brightness only.
+  double chroma_smoothness = 0;
   // The penalty of the comparison with mid-exposure: r^2 for 0 (BeNeRF's), else the pseudo-Huber
   // 2 d^2 (sqrt(1 + (r / d)^2) - 1), r^2 near 0 and linear beyond d (log units), so that a pixel
   // whose own thresholds have drifted it (see event_window) or a noise event weighs less over the
