@@ -27,11 +27,18 @@ class SceneSource final : public RenderSource {
               int supersample, double gain)
       : scene_(scene), camera_(camera), w_(w), h_(h), traj_(traj), gain_(gain) {
     options_.supersample = supersample;
+    // Through a distorting lens each sample's direction is an iteration: found once.
+    if (!camera.distortion.empty()) {
+      directions_ = sampleDirections(camera, w, h, supersample);
+      options_.directions = &directions_;
+    }
     // Before the trajectory's start (a pre-roll) the camera moves on at its speed there.
     const int64_t t0 = traj.beginUs(), dt = std::max<int64_t>(1, (traj.endUs() - t0) / 100);
     start_ = traj.poseAt(t0);
     velocity_per_us_ = logSE3(start_.inverse() * traj.poseAt(t0 + dt)) / static_cast<double>(dt);
   }
+  SceneSource(const SceneSource&) = delete;  // options_ points into directions_
+  SceneSource& operator=(const SceneSource&) = delete;
   SensorSize sensor() const override { return {w_, h_}; }
   SE3 pose(int64_t t_us) const {
     if (t_us >= traj_.beginUs()) return traj_.poseAt(t_us);
@@ -58,6 +65,7 @@ class SceneSource final : public RenderSource {
   const Trajectory& traj_;
   double gain_;
   RenderOptions options_;
+  std::vector<Vector3> directions_;
   int64_t renders_ = 0;
   SE3 start_;
   Vector6 velocity_per_us_;

@@ -293,6 +293,24 @@ void Scene::addBox(const Vector3& center, const Vector3& size, const Vector3& ro
   }
 }
 
+std::vector<Vector3> sampleDirections(const Calibration& camera, int width, int height,
+                                      int supersample) {
+  const int ss = std::max(1, supersample);
+  std::vector<Vector3> d(static_cast<size_t>(width) * height * ss * ss);
+#pragma omp parallel for schedule(static)
+  for (int y = 0; y < height; ++y) {
+    size_t k = static_cast<size_t>(y) * width * ss * ss;
+    for (int x = 0; x < width; ++x) {
+      for (int sy = 0; sy < ss; ++sy) {
+        for (int sx = 0; sx < ss; ++sx) {
+          d[k++] = cameraDirection(camera, x + (sx + 0.5) / ss - 0.5, y + (sy + 0.5) / ss - 0.5);
+        }
+      }
+    }
+  }
+  return d;
+}
+
 cv::Mat render(const Scene& scene, const Calibration& camera, int width, int height,
                const SE3& T_world_cam, const RenderOptions& options, cv::Mat* depth) {
   const int ss = std::max(1, options.supersample);
@@ -309,7 +327,11 @@ cv::Mat render(const Scene& scene, const Calibration& camera, int width, int hei
         for (int sx = 0; sx < ss; ++sx) {
           // Sub-pixel sample positions centred on the pixel centre.
           const double u = x + (sx + 0.5) / ss - 0.5, v = y + (sy + 0.5) / ss - 0.5;
-          const Vector3 d_cam = cameraDirection(camera, u, v);
+          const Vector3 d_cam =
+              options.directions
+                  ? (*options
+                          .directions)[((static_cast<size_t>(y) * width + x) * ss + sy) * ss + sx]
+                  : cameraDirection(camera, u, v);
           cv::Vec3f colour;
           nearest(scene, o, R * d_cam, colour);
           acc += colour;

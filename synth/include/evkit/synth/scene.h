@@ -90,7 +90,15 @@ inline Vector3 cameraDirection(const Calibration& camera, double u, double v) {
 
 struct RenderOptions {
   int supersample = 2;  // k x k rays per pixel, averaged (anti-aliasing)
+  // The camera-frame directions of every sample (row-major pixels, k x k samples each), as
+  // sampleDirections gives them: a renderer called many times through a distorting lens takes
+  // them from here instead of undistorting every sample again. Null: computed per sample.
+  const std::vector<Vector3>* directions = nullptr;
 };
+
+// The camera-frame directions of every sample that render() casts, for RenderOptions::directions.
+std::vector<Vector3> sampleDirections(const Calibration& camera, int width, int height,
+                                      int supersample);
 
 // Renders radiance (and, if asked, the depth along z of the first hit at each pixel centre that is
 // at least half opaque; 0 where nothing is hit) at a pose. Surfaces with an alpha matte are
