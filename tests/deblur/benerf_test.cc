@@ -791,12 +791,12 @@ TEST(Benerf, PixelGridKeepsEdisFrameWhereItsModelCannotTellTheBlur) {
 
 // The events see brightness only, so in colour nothing but the blur term holds the grid's chroma,
 // and fine chroma fringes follow every edge. The chroma's smoothness (BenerfOptions::chroma_smooth,
-// 0.03) takes them out: the cat before bricks at half the suite's size with 30 px of blur, 30
-// L-BFGS steps (as many as `fast`'s 100 here), measured from 0 to 0.03: the chroma alone 30.3 ->
-// 35.1 dB, RGB 25.4 -> 27.3, and the brightness (the channels' mean) 27.1 -> 28.1, the chroma's
-// errors no longer leaking into it.
+// 0.03) takes them out: the cat before bricks at half the suite's size with 16 px of blur, 30
+// L-BFGS steps, measured from 0 to 0.03: the chroma alone 40.3 -> 45.3 dB, RGB 34.1 -> 35.2, and
+// the brightness (the channels' mean) 35.3 -> 35.7, the chroma's errors no longer leaking into it
+// (at 30 px of blur: 30.3 -> 35.1, 25.4 -> 27.3 and 27.1 -> 28.1).
 TEST(Benerf, PixelGridSmoothsTheChromaTheEventsDoNotSee) {
-  const auto natural = naturalObservation("cat_bricks", 1, 30);
+  const auto natural = naturalObservation("cat_bricks", 1);
   if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
   ASSERT_EQ(natural->blurry.image.channels(), 3);
   const Frame& gt = gtMid(*natural);
@@ -824,7 +824,7 @@ TEST(Benerf, PixelGridSmoothsTheChromaTheEventsDoNotSee) {
     chroma[k] = psnr(c, gt_chroma);
   }
   EXPECT_GT(chroma[1], chroma[0] + 3.0) << chroma[0] << " -> " << chroma[1] << " dB";
-  EXPECT_GT(rgb[1], rgb[0] + 1.0) << rgb[0] << " -> " << rgb[1] << " dB";
+  EXPECT_GT(rgb[1], rgb[0] + 0.7) << rgb[0] << " -> " << rgb[1] << " dB";
   EXPECT_GT(grey[1], grey[0]) << grey[0] << " -> " << grey[1] << " dB";
 }
 
