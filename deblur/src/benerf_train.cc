@@ -71,10 +71,11 @@ struct Start {
   BenerfOptions options;
   int views = 0;
   double blur_px = 0;
-  ExposureMotion motion;        // init=frames
-  PinholeCamera camera;         // given, assumed, or estimated (calibrateFromLatentFrames)
-  bool contrast_given = false;  // by the settings or contrast.txt, not estimated
-  BlurMeasurement measured;     // EDI's pass: the blur length and, without thresholds, its search
+  ExposureMotion motion;          // init=frames
+  PinholeCamera camera;           // given, assumed, or estimated (calibrateFromLatentFrames)
+  bool camera_estimated = false;  // `camera` replaces the observation's assumed one
+  bool contrast_given = false;    // by the settings or contrast.txt, not estimated
+  BlurMeasurement measured;       // EDI's pass: the blur length and, without thresholds, its search
 };
 
 // The registration's figures in the summary.
@@ -88,7 +89,7 @@ void reportMotion(const ExposureMotion& motion, DeblurResult& result) {
 }
 
 Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& result) {
-  Start s{given, given.virtual_views, 0, {}, obs.camera, false, {}};
+  Start s{given, given.virtual_views, 0, {}, obs.camera, false, false, {}};
   BenerfOptions& o = s.options;
   o.contrast = resolveContrast(o.contrast, obs);
   s.contrast_given = o.contrast.has_value();
@@ -110,6 +111,7 @@ Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& 
     if (obs.camera_assumed && o.calibrate && o.field == BenerfOptions::FieldKind::kPixels) {
       CalibratedMotion c = calibrateFromLatentFrames(obs, camera, o.contrast, o.log);
       camera = s.camera = c.camera;
+      s.camera_estimated = c.estimated;
       s.motion = std::move(c.motion);
       result.parameters["camera_estimated"] = c.estimated ? 1 : 0;
       result.parameters["camera_residual_assumed_px"] = c.residual_assumed_px;
@@ -562,8 +564,7 @@ DeblurResult BenerfDeblurrer::run(const Observation& given, const DeblurRequest&
   const BenerfOptions& o = s.options;
   // Every later step sees the camera the run uses (an estimated one replaces the assumed).
   std::optional<Observation> calibrated;
-  if (const auto e = result.parameters.find("camera_estimated");
-      e != result.parameters.end() && e->second == 1) {
+  if (s.camera_estimated) {
     calibrated = given;
     calibrated->camera = s.camera;
   }

@@ -314,6 +314,12 @@ std::vector<Vector3> sampleDirections(const Calibration& camera, int width, int 
 cv::Mat render(const Scene& scene, const Calibration& camera, int width, int height,
                const SE3& T_world_cam, const RenderOptions& options, cv::Mat* depth) {
   const int ss = std::max(1, options.supersample);
+  if (options.directions &&
+      options.directions->size() != static_cast<size_t>(width) * height * ss * ss)
+    throw Error("render: RenderOptions::directions holds " +
+                std::to_string(options.directions->size()) + " directions, not " +
+                std::to_string(static_cast<size_t>(width) * height * ss * ss) +
+                " (sampleDirections for this size and supersampling)");
   const int channels = scene.colour ? 3 : 1;
   cv::Mat out(height, width, CV_MAKETYPE(CV_32F, channels));
   if (depth) depth->create(height, width, CV_32F);
