@@ -217,7 +217,9 @@ SimulatorStats simulateAdaptive(RenderSource& source, int64_t t_begin_us, int64_
   while (t < t_end_us) {
     step = std::clamp<int64_t>(step, adaptive.min_step_us,
                                std::max<int64_t>(adaptive.min_step_us, t_end_us - t));
-    const int64_t t_next = std::min(t + step, t_end_us);
+    int64_t t_next = std::min(t + step, t_end_us);
+    const auto required = std::upper_bound(adaptive.sample_at.begin(), adaptive.sample_at.end(), t);
+    if (required != adaptive.sample_at.end()) t_next = std::min(t_next, *required);
     const cv::Mat candidate = source.render(t_next);
     const cv::Mat log_candidate = toLogImage(candidate);
     double max_change;

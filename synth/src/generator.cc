@@ -207,11 +207,19 @@ SynthReport writeObservation(const Scene& scene, const SynthOptions& o, const st
   driver.simulator = o.simulator;
   driver.exposures = {{t0, t1}};
   auto writer = openWriter(tmp + "/events.h5", Format::kHdf5, SensorSize{o.width, o.height});
+  // The ground truth's instants: evenly over the exposure (start, ..., end) and mid-exposure.
+  std::vector<int64_t> sharp_times;
+  const int sharp = std::max(2, o.sharp_frames);
+  for (int k = 0; k < sharp; ++k) sharp_times.push_back(t0 + (t1 - t0) * k / (sharp - 1));
+  const int64_t mid = t0 + (t1 - t0) / 2;
+  if (sharp % 2 == 0) sharp_times.insert(sharp_times.begin() + sharp / 2, mid);
+  // Sampled at those instants, the events agree with the ground truth there.
+  AdaptiveOptions sampling = uniformSampling(t1 - t0, report.blur_px, o.max_motion_px);
+  sampling.sample_at = sharp_times;
   cv::Mat blurry;
   int64_t written = 0;
   const SimulatorStats stats =
-      simulateAdaptive(source, t0 - o.preroll_us, t1, driver,
-                       uniformSampling(t1 - t0, report.blur_px, o.max_motion_px),
+      simulateAdaptive(source, t0 - o.preroll_us, t1, driver, sampling,
                        [&](const EventStore& ev, const std::vector<Frame>& done) {
                          // The pre-roll's events only set each pixel's reference level.
                          const EventSpan kept = ev.sliceTime(t0, t1 + 1);
@@ -231,15 +239,8 @@ SynthReport writeObservation(const Scene& scene, const SynthOptions& o, const st
   writeCalibration(tmp + "/calib.txt", camera);
 
   // Ground truth: sharp frames, poses, knots, depth at mid-exposure.
-  const auto sharp_at = [&](int64_t t) { return source.sharp(t); };
-  const int sharp = std::max(2, o.sharp_frames);
-  for (int k = 0; k < sharp; ++k) {
-    const int64_t t = t0 + (t1 - t0) * k / (sharp - 1);
-    writeImageFile(tmp + "/gt/" + std::to_string(t) + ".png", sharp_at(t), 16);
-  }
-  const int64_t mid = t0 + (t1 - t0) / 2;
-  if (sharp % 2 == 0)
-    writeImageFile(tmp + "/gt/" + std::to_string(mid) + ".png", sharp_at(mid), 16);
+  for (int64_t t : sharp_times)
+    writeImageFile(tmp + "/gt/" + std::to_string(t) + ".png", source.sharp(t), 16);
   std::vector<int64_t> times;
   for (int k = 0; k < std::max(2, o.poses); ++k)
     times.push_back(t0 + (t1 - t0) * k / (std::max(2, o.poses) - 1));
@@ -307,8 +308,14 @@ RecordingReport writeSyntheticRecording(const Scene& scene, const SynthOptions& 
   SceneSource source(scene, camera, o.width, o.height, traj, o.supersample, o.gain);
   RecordingReport report;
   report.frames = r.frames;
-  simulateAdaptive(source, t0 - o.preroll_us, t_end, driver,
-                   uniformSampling(t_end - t0, path_px, o.max_motion_px),
+  // The ground truth's instants (each exposure's start, middle and end) are samples.
+  std::vector<int64_t> sharp_times;
+  for (const auto& e : driver.exposures)
+    for (int64_t t : {e.start_us, e.start_us + (e.end_us - e.start_us) / 2, e.end_us})
+      sharp_times.push_back(t);
+  AdaptiveOptions sampling = uniformSampling(t_end - t0, path_px, o.max_motion_px);
+  sampling.sample_at = sharp_times;
+  simulateAdaptive(source, t0 - o.preroll_us, t_end, driver, sampling,
                    [&](const EventStore& ev, const std::vector<Frame>& done) {
                      EventStore kept(sensor);
                      const EventSpan recorded = ev.sliceTime(t0, t_end + 1);
@@ -332,13 +339,11 @@ RecordingReport writeSyntheticRecording(const Scene& scene, const SynthOptions& 
   std::ofstream(tmp + "/contrast.txt")
       << o.simulator.contrast_pos << ' ' << o.simulator.contrast_neg << '\n';
   writeCalibration(tmp + "/calib.txt", camera);
+  for (int64_t t : sharp_times)
+    writeImageFile(tmp + "/gt/" + std::to_string(t) + ".png", source.sharp(t), 16);
   std::vector<int64_t> times;
-  for (const auto& e : driver.exposures) {
-    const int64_t mid = e.start_us + (e.end_us - e.start_us) / 2;
-    for (int64_t t : {e.start_us, mid, e.end_us})
-      writeImageFile(tmp + "/gt/" + std::to_string(t) + ".png", source.sharp(t), 16);
+  for (const auto& e : driver.exposures)
     for (int k = 0; k <= 100; ++k) times.push_back(e.start_us + (e.end_us - e.start_us) * k / 100);
-  }
   writeTum(tmp + "/gt/poses.txt", sampleTrajectory(traj, times));
   out.commit();
   return report;

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <omp.h>
 
+#include <algorithm>
 #include <cmath>
 #include <map>
 #include <opencv2/videoio.hpp>
@@ -331,6 +332,42 @@ TEST(Simulator, AdaptiveSamplingNeverSkipsMoreThanAFractionOfC) {
   for (int f = 0; f <= 10; ++f) coarse.addFrame(bar.render(10000 * f), 10000 * f, out);
   EXPECT_GT(coarse.stats().max_fraction_over_c, 0.05);
   EXPECT_GT(coarse.stats().undersampled_intervals, 5);
+}
+
+// The bar, and the times it was rendered at.
+class RecordedBar final : public RenderSource {
+ public:
+  SensorSize sensor() const override { return bar_.sensor(); }
+  cv::Mat render(int64_t t_us) override {
+    times.push_back(t_us);
+    return bar_.render(t_us);
+  }
+  std::vector<int64_t> times;
+
+ private:
+  SweepingBar bar_;
+};
+
+TEST(Simulator, AdaptiveSamplingRendersTheRequiredInstants) {
+  RecordedBar bar;
+  AdaptiveOptions uniform;
+  uniform.lambda = 1e30;  // never rejects: fixed steps of 700 us
+  uniform.min_step_us = uniform.max_step_us = 700;
+  uniform.sample_at = {2500, 5000, 9999};
+  simulateAdaptive(bar, 0, 10000, DriverOptions{}, uniform,
+                   [](const EventStore&, const std::vector<Frame>&) {});
+  for (int64_t t : uniform.sample_at)
+    EXPECT_EQ(std::count(bar.times.begin(), bar.times.end(), t), 1) << t;
+  EXPECT_EQ(bar.times.front(), 0);
+  EXPECT_EQ(bar.times.back(), 10000);
+  for (size_t k = 1; k < bar.times.size(); ++k) {
+    EXPECT_GT(bar.times[k], bar.times[k - 1]);
+    EXPECT_LE(bar.times[k] - bar.times[k - 1], 700);
+  }
+  // Between the instants the steps stay on the grid they set out on: 0, 700, ..., 2100, 2500,
+  // 3200, ...
+  EXPECT_EQ(bar.times[4], 2500);
+  EXPECT_EQ(bar.times[5], 3200);
 }
 
 }  // namespace

@@ -76,6 +76,11 @@ struct AdaptiveOptions {
   double lambda = 0.5;
   int64_t min_step_us = 10;
   int64_t max_step_us = 10000;
+  // Times that must be samples, sorted: a step that would pass one ends on it. The events
+  // interpolate log intensity linearly between samples, so at a sample they agree with a frame
+  // rendered at that time, and anywhere else they may lag it by up to a step (an edge that
+  // crosses a pixel between two samples fires across the whole step).
+  std::vector<int64_t> sample_at;
 };
 
 SimulatorStats simulateAdaptive(RenderSource& source, int64_t t_begin_us, int64_t t_end_us,
