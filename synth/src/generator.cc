@@ -6,6 +6,7 @@
 #include <fstream>
 #include <random>
 #include <sstream>
+#include <utility>
 
 #include "evkit/base/error.h"
 #include "evkit/events/atomic_file.h"
@@ -72,9 +73,12 @@ class SceneSource final : public RenderSource {
 };
 
 // Never rejecting, a fixed step: the image moves by at most max_motion_px between two renders
-// when the camera's path over `duration_us` moves a point by `blur_px`.
-AdaptiveOptions uniformSampling(int64_t duration_us, double blur_px, double max_motion_px) {
+// when the camera's path over `duration_us` moves a point by `blur_px`; and a render at each of
+// the ground truth's instants `sharp_times`, so that the events agree with it there.
+AdaptiveOptions uniformSampling(int64_t duration_us, double blur_px, double max_motion_px,
+                                std::vector<int64_t> sharp_times) {
   AdaptiveOptions uniform;
+  uniform.sample_at = std::move(sharp_times);
   uniform.lambda = 1e30;
   uniform.min_step_us = uniform.max_step_us =
       std::clamp<int64_t>(static_cast<int64_t>(static_cast<double>(duration_us) * max_motion_px /
@@ -213,13 +217,11 @@ SynthReport writeObservation(const Scene& scene, const SynthOptions& o, const st
   for (int k = 0; k < sharp; ++k) sharp_times.push_back(t0 + (t1 - t0) * k / (sharp - 1));
   const int64_t mid = t0 + (t1 - t0) / 2;
   if (sharp % 2 == 0) sharp_times.insert(sharp_times.begin() + sharp / 2, mid);
-  // Sampled at those instants, the events agree with the ground truth there.
-  AdaptiveOptions sampling = uniformSampling(t1 - t0, report.blur_px, o.max_motion_px);
-  sampling.sample_at = sharp_times;
   cv::Mat blurry;
   int64_t written = 0;
   const SimulatorStats stats =
-      simulateAdaptive(source, t0 - o.preroll_us, t1, driver, sampling,
+      simulateAdaptive(source, t0 - o.preroll_us, t1, driver,
+                       uniformSampling(t1 - t0, report.blur_px, o.max_motion_px, sharp_times),
                        [&](const EventStore& ev, const std::vector<Frame>& done) {
                          // The pre-roll's events only set each pixel's reference level.
                          const EventSpan kept = ev.sliceTime(t0, t1 + 1);
@@ -308,14 +310,13 @@ RecordingReport writeSyntheticRecording(const Scene& scene, const SynthOptions& 
   SceneSource source(scene, camera, o.width, o.height, traj, o.supersample, o.gain);
   RecordingReport report;
   report.frames = r.frames;
-  // The ground truth's instants (each exposure's start, middle and end) are samples.
+  // The ground truth's instants: each exposure's start, middle and end.
   std::vector<int64_t> sharp_times;
   for (const auto& e : driver.exposures)
     for (int64_t t : {e.start_us, e.start_us + (e.end_us - e.start_us) / 2, e.end_us})
       sharp_times.push_back(t);
-  AdaptiveOptions sampling = uniformSampling(t_end - t0, path_px, o.max_motion_px);
-  sampling.sample_at = sharp_times;
-  simulateAdaptive(source, t0 - o.preroll_us, t_end, driver, sampling,
+  simulateAdaptive(source, t0 - o.preroll_us, t_end, driver,
+                   uniformSampling(t_end - t0, path_px, o.max_motion_px, sharp_times),
                    [&](const EventStore& ev, const std::vector<Frame>& done) {
                      EventStore kept(sensor);
                      const EventSpan recorded = ev.sliceTime(t0, t_end + 1);
