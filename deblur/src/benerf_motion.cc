@@ -62,6 +62,11 @@ constexpr double kHuberPx = 1.0;
 
 double huberWeight(double r) { return r <= kHuberPx ? 1.0 : kHuberPx / r; }
 
+// fitTime's ridge on the translation, over all the tracks.
+double translationRidge(const PinholeCamera& camera, const std::vector<Track>& tracks) {
+  return 1e-4 * static_cast<double>(tracks.size()) * camera.fx * camera.fx;
+}
+
 // Gauss-Newton on one time's motion (rotation, and translation when `translate`), each track's
 // inverse depth fixed, with Huber weights; the translation gets a small ridge so that where no
 // parallax tells them apart, rotation explains the motion.
@@ -236,7 +241,7 @@ RigidFit fitRigid(const PinholeCamera& camera, const std::vector<Track>& tracks,
     w.setConstant(1 / 1.5);
   else
     w[0] = 1 / 1.5;
-  const double ridge = 1e-4 * static_cast<double>(tracks.size()) * camera.fx * camera.fx;
+  const double ridge = translationRidge(camera, tracks);
   for (int round = 0; round < 6; ++round) {
 #pragma omp parallel for schedule(dynamic)
     for (int k = 0; k < times; ++k) {
@@ -331,6 +336,69 @@ cv::Mat inverseDepthMap(const PinholeCamera& camera, const DepthModel& model, co
   return rho;
 }
 
+// How much of the prior's cost a pixel's own depth must take away, in units of the tracks'
+// residual variance: a likelihood-ratio test on one unknown (chi-squared at 95% is 3.84). Measured
+// on six natural scenes with parallax (BENCHMARKS.md, "Each pixel's depth"): 0.05 dB above taking
+// every pixel's own depth; at 16 the near layer of cat_bricks_blur60_noisy kept its tiles' depth
+// and the residual stayed above 1 px.
+constexpr double kDepthTest = 4.0;
+
+// Each pixel's inverse depth from its own dense flows, given every time's motion: Gauss-Newton on
+// them with Huber weights from the prior map's value, which weighs as one flow a pixel off, kept
+// where it passes kDepthTest against the prior (where the translation moves the image too little to
+// tell the depths apart, or the flows are noise, the prior's stays); then a 5 x 5 median, which
+// takes out single pixels' outliers and keeps the layers' edges. The tiles' depths blur a near
+// layer into its far surround over a tile and more; the flows resolve it. `variance`: the tracks'
+// residual variance (px^2) under the prior's model.
+cv::Mat pixelInverseDepth(const PinholeCamera& camera, const std::vector<cv::Mat>& flows, int mid,
+                          const std::vector<Vector3>& theta, const std::vector<Vector3>& p,
+                          const cv::Mat& prior, double variance) {
+  const int W = camera.width, H = camera.height, times = static_cast<int>(theta.size());
+  std::vector<Matrix3> Rt(theta.size());
+  for (size_t k = 0; k < theta.size(); ++k) Rt[k] = expSO3(theta[k]).toRotationMatrix().transpose();
+  cv::Mat rho(H, W, CV_32F);
+#pragma omp parallel for schedule(static)
+  for (int y = 0; y < H; ++y) {
+    for (int x = 0; x < W; ++x) {
+      const Vector3 b = nerf::pixelDirection(camera, x, y);
+      const double r0 = prior.at<float>(y, x);
+      // The Huber cost of the pixel's flows at inverse depth r, and its Gauss-Newton terms.
+      const auto cost = [&](double r, double* h, double* g) {
+        double e = 0;
+        for (int k = 0; k < times; ++k) {
+          if (k == mid) continue;
+          const auto i = static_cast<size_t>(k);
+          const cv::Point2f f = flows[i].at<cv::Point2f>(y, x);
+          if (!std::isfinite(f.x)) continue;
+          const Eigen::Vector2d q(x + f.x, y + f.y);
+          const Eigen::Vector2d at = nerf::projectPoint(camera, Rt[i] * (b - r * p[i]));
+          const double n = (at - q).norm();
+          e += n <= kHuberPx ? n * n : kHuberPx * (2 * n - kHuberPx);
+          if (!h) continue;
+          const Eigen::Vector2d J =
+              (nerf::projectPoint(camera, Rt[i] * (b - (r + 1e-5) * p[i])) - at) / 1e-5;
+          const double w = huberWeight(n);
+          *h += w * J.squaredNorm();
+          *g += w * J.dot(at - q);
+        }
+        return e;
+      };
+      double r = r0;
+      for (int iteration = 0; iteration < 4; ++iteration) {
+        double h = 1.0, g = r - r0;
+        cost(r, &h, &g);
+        r = std::clamp(r - g / h, 0.0, 1 / 1.05);
+      }
+      // The pixel's own depth where its flows tell it: it takes away more than kDepthTest times the
+      // tracks' residual variance from the prior's cost (a likelihood-ratio test on one unknown).
+      if (!(cost(r0, nullptr, nullptr) - cost(r, nullptr, nullptr) > kDepthTest * variance)) r = r0;
+      rho.at<float>(y, x) = static_cast<float>(r);
+    }
+  }
+  cv::medianBlur(rho, rho, 5);
+  return rho;
+}
+
 }  // namespace
 
 namespace {
@@ -342,6 +410,9 @@ constexpr int kIntervals = 8;
 struct TrackedPoints {
   std::vector<Track> tracks;
   std::vector<int64_t> times;
+  // Each time's dense flow from the mid frame (CV_32FC2), NaN where its forward-backward check
+  // failed; empty at mid-exposure.
+  std::vector<cv::Mat> flows;
   int tiles_x = 1, tiles_y = 1;
 };
 
@@ -386,6 +457,7 @@ TrackedPoints trackLatentFrames(const Observation& obs, const std::optional<Cont
     }
   }
   auto dis = cv::DISOpticalFlow::create(cv::DISOpticalFlow::PRESET_MEDIUM);
+  out.flows.resize(kIntervals + 1);
   for (int k = 0; k <= kIntervals; ++k) {
     if (k == mid) {
       for (Track& tr : tracks) tr.seen[k] = tr.pixel;
@@ -395,16 +467,26 @@ TrackedPoints trackLatentFrames(const Observation& obs, const std::optional<Cont
     cv::Mat forward, backward;
     dis->calc(mid8, other, forward);
     dis->calc(other, mid8, backward);
+    // The forward flow where it passes the check: back to within half a pixel and 5% of its length.
+    for (int y = 0; y < H; ++y) {
+      for (int x = 0; x < W; ++x) {
+        cv::Point2f& f = forward.at<cv::Point2f>(y, x);
+        const double qx = x + f.x, qy = y + f.y;
+        bool ok = qx >= 0 && qy >= 0 && qx < W - 1 && qy < H - 1;
+        if (ok) {
+          const cv::Point2f b = backward.at<cv::Point2f>(static_cast<int>(std::lround(qy)),
+                                                         static_cast<int>(std::lround(qx)));
+          ok = std::hypot(f.x + b.x, f.y + b.y) <= 0.5 + 0.05 * std::hypot(f.x, f.y);
+        }
+        if (!ok) f = cv::Point2f(NAN, NAN);
+      }
+    }
     for (Track& tr : tracks) {
       const cv::Point2f f =
           forward.at<cv::Point2f>(static_cast<int>(tr.pixel.y()), static_cast<int>(tr.pixel.x()));
-      const double qx = tr.pixel.x() + f.x, qy = tr.pixel.y() + f.y;
-      if (!(qx >= 0 && qy >= 0 && qx < W - 1 && qy < H - 1)) continue;
-      const cv::Point2f b = backward.at<cv::Point2f>(static_cast<int>(std::lround(qy)),
-                                                     static_cast<int>(std::lround(qx)));
-      if (std::hypot(f.x + b.x, f.y + b.y) > 0.5 + 0.05 * std::hypot(f.x, f.y)) continue;
-      tr.seen[k] = {qx, qy};
+      if (std::isfinite(f.x)) tr.seen[k] = {tr.pixel.x() + f.x, tr.pixel.y() + f.y};
     }
+    out.flows[static_cast<size_t>(k)] = forward;
   }
   return out;
 }
@@ -449,16 +531,46 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points) {
   std::nth_element(off.begin(), off.begin() + off.size() * 95 / 100, off.end());
   m.parallax_px = off[off.size() * 95 / 100];
   m.depth = m.parallax_px > 1.0 && tiles.residual_px < 0.85 * plane.residual_px;
-  const RigidFit& chosen = m.depth ? tiles : plane;
+  RigidFit chosen = m.depth ? tiles : plane;
+  m.inverse_depth =
+      inverseDepthMap(camera, m.depth ? tile_model : plane_model, chosen, kTilesX, kTilesY);
+  if (m.depth) {
+    // Each pixel's own depth from the dense flows, then each time's motion again through it.
+    const cv::Mat tile_map = m.inverse_depth;
+    RigidFit pixels = tiles;
+    cv::Mat map;
+    const double ridge = translationRidge(camera, tracks);
+    for (int round = 0; round < 2; ++round) {
+      map = pixelInverseDepth(camera, points.flows, mid, pixels.theta, pixels.p, tile_map,
+                              tiles.residual_px * tiles.residual_px);
+      for (size_t i = 0; i < tracks.size(); ++i)
+        pixels.rho[i] = map.at<float>(static_cast<int>(tracks[i].pixel.y()),
+                                      static_cast<int>(tracks[i].pixel.x()));
+#pragma omp parallel for schedule(dynamic)
+      for (int k = 0; k < times; ++k) {
+        if (k != mid)
+          fitTime(camera, tracks, pixels.rho, k, true, ridge, pixels.theta[static_cast<size_t>(k)],
+                  pixels.p[static_cast<size_t>(k)]);
+      }
+    }
+    pixels.residual_px = rmsResidual(camera, tracks, pixels.rho, pixels.theta, pixels.p);
+    m.residual_pixels_px = pixels.residual_px;
+    if (pixels.residual_px < tiles.residual_px) {
+      chosen = pixels;
+      m.inverse_depth = map;
+      m.pixel_depth = true;
+    }
+  }
   // A rigid camera that does not explain the registration to within a pixel (motion beyond the
   // models, a registration that failed): no poses, and the caller starts elsewhere.
-  if (chosen.residual_px > 1.0) return m;
+  if (chosen.residual_px > 1.0) {
+    m.inverse_depth = cv::Mat();
+    return m;
+  }
   for (int k = 0; k < times; ++k) {
     const auto i = static_cast<size_t>(k);
     m.poses.push_back({points.times[i], SE3(expSO3(chosen.theta[i]), chosen.p[i])});
   }
-  m.inverse_depth =
-      inverseDepthMap(camera, m.depth ? tile_model : plane_model, chosen, kTilesX, kTilesY);
   return m;
 }
 

@@ -85,6 +85,8 @@ void reportMotion(const ExposureMotion& motion, DeblurResult& result) {
   result.parameters["motion_residual_rotation_px"] = motion.residual_rotation_px;
   result.parameters["motion_residual_plane_px"] = motion.residual_plane_px;
   result.parameters["motion_residual_depth_px"] = motion.residual_depth_px;
+  result.parameters["motion_residual_pixels_px"] = motion.residual_pixels_px;
+  result.parameters["representation_pixel_depth"] = motion.pixel_depth ? 1 : 0;
   result.parameters["motion_tracks"] = motion.tracks;
 }
 

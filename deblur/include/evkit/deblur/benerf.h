@@ -98,10 +98,11 @@ struct BenerfOptions {
   // that never do; BENCHMARKS.md).
   // kFrames (the default): the motion registered between EDI's latent frames at 9 times
   // (motionFromLatentFrames): a rotation and a translation per time through a plane, or through
-  // per-tile depths where the parallax is observed (the representation, in the summary), the knots
-  // fitted to it, then jittered. It follows the shake's changes of speed and direction and its
-  // parallax, which one constant rotation cannot; measured on the natural suite at `fast`
-  // (BENCHMARKS.md): events 32.60 dB -> frames 33.2, the exposure's rotation error 0.97 -> 0.4 deg.
+  // per-tile depths refined to each pixel's where the parallax is observed (the representation,
+  // in the summary), the knots fitted to it, then jittered. It follows the shake's changes of speed
+  // and direction and its parallax, which one constant rotation cannot; measured on the natural
+  // suite at `fast` (BENCHMARKS.md): events 32.60 dB -> frames 33.2, the exposure's rotation error
+  // 0.97 -> 0.4 deg.
   enum class Init { kIdentity, kEvents, kFrames };
   Init init = Init::kFrames;
   int virtual_views = 0;  // n; 0: adapted to the blur length (measured from the events)
@@ -228,16 +229,23 @@ Vector3 rotationFromEvents(const Observation& obs, const nerf::PinholeCamera& ca
 // depth) are put at depth 1.5, the NDC near plane being at 1. The representation chosen is the
 // plane unless the parallax is observed in the data: the tiles' depths move the image off the best
 // plane's motion by more than 1 px over the exposure (95th percentile of the tracks) and take away
-// at least 15% of the plane's residual. Where the chosen model's RMS residual is above 1 px (the
-// rigid camera does not explain the registration), or fewer than 50 points are tracked, there are
-// no poses.
+// at least 15% of the plane's residual. Where the depths are chosen, each pixel then takes its own
+// inverse depth from its dense flows (Gauss-Newton on the flows at the 8 other times, from the
+// tiles' value, then a 5 x 5 median), and each time's motion is fitted again through them, twice;
+// the tiles' depths blur a near layer into its surround over a tile and more (a rocket at 2 m
+// before a backdrop at 10 m: 1.3-1.8 px of image motion error on the rocket, per pixel 0.8-1.2).
+// That refinement is kept where it lowers the tracks' residual (pixel_depth). Where the chosen
+// model's RMS residual is above 1 px (the rigid camera does not explain the registration), or
+// fewer than 50 points are tracked, there are no poses.
 struct ExposureMotion {
   std::vector<StampedPose> poses;  // T_mid_t: the camera at each time in the mid-exposure frame
   bool depth = false;              // the depth model chosen (else the plane)
   double parallax_px = 0;  // the tiles' image motion off the best plane's, over the exposure
   double residual_rotation_px = 0, residual_plane_px = 0,
-         residual_depth_px = 0;  // RMS of each model's residuals
-  int tracks = 0;                // textured points tracked
+         residual_depth_px = 0;   // RMS of each model's residuals
+  bool pixel_depth = false;       // the depth model refined to each pixel's own depth
+  double residual_pixels_px = 0;  // its RMS residual
+  int tracks = 0;                 // textured points tracked
   // The chosen model's inverse depth (1 / z in the poses' units) at every pixel of the mid-exposure
   // frame (float32); empty without poses.
   cv::Mat inverse_depth;
