@@ -391,7 +391,12 @@ cv::Mat pixelInverseDepth(const PinholeCamera& camera, const std::vector<cv::Mat
       }
       // The pixel's own depth where its flows tell it: it takes away more than kDepthTest times the
       // tracks' residual variance from the prior's cost (a likelihood-ratio test on one unknown).
-      if (!(cost(r0, nullptr, nullptr) - cost(r, nullptr, nullptr) > kDepthTest * variance)) r = r0;
+      // An estimate at a bound of the range is no minimum of the cost: the flows there follow
+      // something other than the pixel (an occluding edge's, a failed flow).
+      const bool at_bound = r <= 0 || r >= 1 / 1.05;
+      if (at_bound ||
+          !(cost(r0, nullptr, nullptr) - cost(r, nullptr, nullptr) > kDepthTest * variance))
+        r = r0;
       rho.at<float>(y, x) = static_cast<float>(r);
     }
   }

@@ -71,7 +71,11 @@ class PixelGridProblem {
   int views() const { return views_; }
   int margin() const { return margin_; }
   // The longest image path of a pixel over the exposure, by the motion and the inverse depth
-  // (empty: at infinity), sampled on a 16 x 16 grid of pixels.
+  // (empty: at infinity), sampled at the centres of a 16 x 16 grid of cells: the longest but for
+  // the 2% longest, which a few pixels' own depths far off can make (pixel_depth).
+  // On the natural suite (`fast`) the longest alone was 20-56% over the truth on 6 of 24 scenes,
+  // from pixels along the border, while the paths' 50th, 95th and 99th percentiles were within 1 px
+  // of the truth's.
   double blurLength() const { return blur_px_; }
   static double longestImagePath(const PinholeCamera& camera, const Trajectory& motion,
                                  const cv::Mat& inverse_depth, int64_t t0_us, int64_t t1_us);
