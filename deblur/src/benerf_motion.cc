@@ -6,6 +6,7 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
@@ -50,10 +51,15 @@ struct Track {
   std::vector<Eigen::Vector2d> seen;
 };
 
-// Where the camera at one time sees a mid-exposure point of inverse depth rho (0: at infinity).
+// The transposed rotation matrix of the rotation vector theta (once per time, not per track).
+Matrix3 transposedRotation(const Vector3& theta) {
+  return expSO3(theta).toRotationMatrix().transpose();
+}
+
+// Where the camera at one time (Rt = transposedRotation of its rotation, p its translation) sees a
+// mid-exposure point of inverse depth rho (0: at infinity).
 Eigen::Vector2d predict(const PinholeCamera& camera, const Vector3& bearing, double rho,
-                        const Vector3& theta, const Vector3& p) {
-  const Matrix3 Rt = expSO3(theta).toRotationMatrix().transpose();
+                        const Matrix3& Rt, const Vector3& p) {
   const Vector3 X = Rt * (bearing - rho * p);  // R^T (b / rho - p), scaled by rho
   return nerf::projectPoint(camera, X);
 }
@@ -77,17 +83,27 @@ void fitTime(const PinholeCamera& camera, const std::vector<Track>& tracks,
   for (int iteration = 0; iteration < 8; ++iteration) {
     Eigen::MatrixXd H = Eigen::MatrixXd::Zero(n, n);
     Eigen::VectorXd g = Eigen::VectorXd::Zero(n);
+    // The rotation and its three perturbed copies for the Jacobian's columns (forward differences).
+    std::array<Matrix3, 4> Rt;
+    Rt[0] = transposedRotation(theta);
+    for (int k = 0; k < 3; ++k) {
+      Vector3 dt = theta;
+      dt[k] += 1e-6;
+      Rt[static_cast<size_t>(k) + 1] = transposedRotation(dt);
+    }
     for (size_t i = 0; i < tracks.size(); ++i) {
       const Track& tr = tracks[i];
       const Eigen::Vector2d& q = tr.seen[static_cast<size_t>(time)];
       if (!std::isfinite(q.x())) continue;
       const double r = translate ? rho[i] : 0.0;
-      const Eigen::Vector2d r0 = predict(camera, tr.bearing, r, theta, p) - q;
+      const Eigen::Vector2d r0 = predict(camera, tr.bearing, r, Rt[0], p) - q;
       Eigen::Matrix<double, 2, Eigen::Dynamic> J(2, n);
       for (int k = 0; k < n; ++k) {
-        Vector3 dt = theta, dp = p;
-        (k < 3 ? dt[k] : dp[k - 3]) += 1e-6;
-        J.col(k) = (predict(camera, tr.bearing, r, dt, dp) - r0 - q) / 1e-6;
+        Vector3 dp = p;
+        if (k >= 3) dp[k - 3] += 1e-6;
+        J.col(k) = (predict(camera, tr.bearing, r, Rt[k < 3 ? static_cast<size_t>(k) + 1 : 0], dp) -
+                    r0 - q) /
+                   1e-6;
       }
       const double w = huberWeight(r0.norm());
       H += w * J.transpose() * J;
@@ -134,6 +150,8 @@ void fitDepth(const PinholeCamera& camera, const std::vector<Track>& tracks,
   const int threads = omp_get_max_threads();
   std::vector<Eigen::MatrixXd> Hs(static_cast<size_t>(threads));
   std::vector<Eigen::VectorXd> gs(static_cast<size_t>(threads));
+  std::vector<Matrix3> Rt(theta.size());
+  for (size_t k = 0; k < theta.size(); ++k) Rt[k] = transposedRotation(theta[k]);
   for (int iteration = 0; iteration < 4; ++iteration) {
     // Each thread's sums over a fixed share of the tracks, added in thread order: the same
     // figures on every run with the same thread count.
@@ -156,9 +174,9 @@ void fitDepth(const PinholeCamera& camera, const std::vector<Track>& tracks,
         for (size_t k = 0; k < theta.size(); ++k) {
           const Eigen::Vector2d& q = tr.seen[k];
           if (!std::isfinite(q.x())) continue;
-          const Eigen::Vector2d r0 = predict(camera, tr.bearing, rho, theta[k], p[k]) - q;
+          const Eigen::Vector2d r0 = predict(camera, tr.bearing, rho, Rt[k], p[k]) - q;
           const Eigen::Vector2d J =
-              (predict(camera, tr.bearing, rho + 1e-5, theta[k], p[k]) - r0 - q) / 1e-5;
+              (predict(camera, tr.bearing, rho + 1e-5, Rt[k], p[k]) - r0 - q) / 1e-5;
           const double wt = huberWeight(r0.norm());
           for (const auto& [a, va] : phi) {
             g[a] += wt * va * J.dot(r0);
@@ -187,13 +205,15 @@ void fitDepth(const PinholeCamera& camera, const std::vector<Track>& tracks,
 double rmsResidual(const PinholeCamera& camera, const std::vector<Track>& tracks,
                    const std::vector<double>& rho, const std::vector<Vector3>& theta,
                    const std::vector<Vector3>& p) {
+  std::vector<Matrix3> Rt(theta.size());
+  for (size_t k = 0; k < theta.size(); ++k) Rt[k] = transposedRotation(theta[k]);
   double sum = 0;
   size_t count = 0;
   for (size_t i = 0; i < tracks.size(); ++i) {
     for (size_t k = 0; k < theta.size(); ++k) {
       const Eigen::Vector2d& q = tracks[i].seen[k];
       if (!std::isfinite(q.x())) continue;
-      const double r = (predict(camera, tracks[i].bearing, rho[i], theta[k], p[k]) - q).norm();
+      const double r = (predict(camera, tracks[i].bearing, rho[i], Rt[k], p[k]) - q).norm();
       sum += std::min(r, 3 * kHuberPx) * std::min(r, 3 * kHuberPx);
       ++count;
     }
@@ -355,7 +375,7 @@ cv::Mat pixelInverseDepth(const PinholeCamera& camera, const std::vector<cv::Mat
                           const cv::Mat& prior, double variance) {
   const int W = camera.width, H = camera.height, times = static_cast<int>(theta.size());
   std::vector<Matrix3> Rt(theta.size());
-  for (size_t k = 0; k < theta.size(); ++k) Rt[k] = expSO3(theta[k]).toRotationMatrix().transpose();
+  for (size_t k = 0; k < theta.size(); ++k) Rt[k] = transposedRotation(theta[k]);
   cv::Mat rho(H, W, CV_32F);
 #pragma omp parallel for schedule(static)
   for (int y = 0; y < H; ++y) {

@@ -109,6 +109,7 @@ Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& 
   }
   if (s.views <= 0) s.views = virtualViewsFor(s.blur_px);
   if (o.init == BenerfOptions::Init::kFrames || o.field == BenerfOptions::FieldKind::kPixels) {
+    const auto registration_start = Clock::now();
     PinholeCamera camera = obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows);
     if (obs.camera_assumed && o.calibrate && o.field == BenerfOptions::FieldKind::kPixels) {
       CalibratedMotion c = calibrateFromLatentFrames(obs, camera, o.contrast, o.log);
@@ -135,6 +136,7 @@ Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& 
       }
     }
     reportMotion(s.motion, result);
+    result.timings_s["registration"] = secondsSince(registration_start);
   }
   return s;
 }
@@ -455,6 +457,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   if (s.contrast_given) {
     contrast = *o.contrast;
   } else {
+    const auto search_start = Clock::now();
     const BlurMeasurement m =
         s.measured.searched ? s.measured : measureBlur(given, std::nullopt, o.log);
     result.parameters["contrast_searched"] = m.c_on;
@@ -477,6 +480,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
       reportMotion(registered, result);
     }
     result.parameters["contrast_estimated"] = contrast.on;
+    result.timings_s["contrast"] = secondsSince(search_start);
   }
   const cv::Mat& inverse_depth = registered.inverse_depth;
   result.parameters["motion_from_frames"] = 1;

@@ -74,15 +74,24 @@ StartFit startFit(const PixelGridProblem& problem, const std::vector<double>& x,
 // and its neighbours; `at_end`: the least was at an end of the range.
 Contrast contrastFromMotion(const Observation& obs, const PinholeCamera& camera,
                             const Trajectory& motion, const cv::Mat& inverse_depth,
-                            const PixelGridOptions& po, double ratio, bool* at_end) {
-  // The blur term does not depend on the thresholds: one problem serves every c.
+                            PixelGridOptions po, double ratio, bool* at_end) {
+  // The blur term does not depend on the thresholds: one problem serves every c, on at most 20
+  // views (the blur integral coarser, alike for every c, as in contrastFromSolves), and one EDI
+  // model every c's frame.
   const double step = std::log(2.0) / 3;
+  po.max_views = std::max(po.min_views, 20);
   const PixelGridProblem problem(obs, camera, motion, inverse_depth, Contrast{1, ratio}, po);
+  const Frame& blurry = obs.blurry;
+  const EdiModel edi(obs.events.view(), blurry.image.cols, blurry.image.rows,
+                     blurry.exposure_start_us, blurry.exposure_end_us);
+  EdiOptions edi_options;
+  edi_options.use_observation_contrast = false;
   std::vector<double> logs, terms;
   for (double l = std::log(0.05); l <= std::log(1.0) + 1e-9; l += step) {
     const double c = std::exp(l);
     PixelGridProblem::Terms t;
-    problem.evaluate(problem.start(ediMidFrame(obs, Contrast{c, c * ratio})), nullptr, &t);
+    const cv::Mat frame = edi.latent(blurry.image, blurry.midExposure(), c, c * ratio, edi_options);
+    problem.evaluate(problem.start(frame), nullptr, &t);
     logs.push_back(l);
     terms.push_back(t.blur);
   }

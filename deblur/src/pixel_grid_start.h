@@ -39,7 +39,7 @@ StartFit startFit(const PixelGridProblem& problem, const std::vector<double>& x,
 // blur term there); `at_end`: the least was at an end of the scan's range, [0.05, 1].
 Contrast contrastFromMotion(const Observation& obs, const PinholeCamera& camera,
                             const Trajectory& motion, const cv::Mat& inverse_depth,
-                            const PixelGridOptions& po, double ratio, bool* at_end);
+                            PixelGridOptions po, double ratio, bool* at_end);
 
 // The thresholds refined from `c0` by short solves of the grid, each on the motion registered at
 // its own c: the c at which the solved image re-blurs closest to the frame.
