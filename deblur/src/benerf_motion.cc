@@ -56,6 +56,13 @@ Matrix3 transposedRotation(const Vector3& theta) {
   return expSO3(theta).toRotationMatrix().transpose();
 }
 
+// transposedRotation of each time's rotation vector.
+std::vector<Matrix3> transposedRotations(const std::vector<Vector3>& theta) {
+  std::vector<Matrix3> Rt(theta.size());
+  for (size_t k = 0; k < theta.size(); ++k) Rt[k] = transposedRotation(theta[k]);
+  return Rt;
+}
+
 // Where the camera at one time (Rt = transposedRotation of its rotation, p its translation) sees a
 // mid-exposure point of inverse depth rho (0: at infinity).
 Eigen::Vector2d predict(const PinholeCamera& camera, const Vector3& bearing, double rho,
@@ -99,11 +106,10 @@ void fitTime(const PinholeCamera& camera, const std::vector<Track>& tracks,
       const Eigen::Vector2d r0 = predict(camera, tr.bearing, r, Rt[0], p) - q;
       Eigen::Matrix<double, 2, Eigen::Dynamic> J(2, n);
       for (int k = 0; k < n; ++k) {
+        const Matrix3& R = k < 3 ? Rt[static_cast<size_t>(k) + 1] : Rt[0];
         Vector3 dp = p;
         if (k >= 3) dp[k - 3] += 1e-6;
-        J.col(k) = (predict(camera, tr.bearing, r, Rt[k < 3 ? static_cast<size_t>(k) + 1 : 0], dp) -
-                    r0 - q) /
-                   1e-6;
+        J.col(k) = (predict(camera, tr.bearing, r, R, dp) - r0 - q) / 1e-6;
       }
       const double w = huberWeight(r0.norm());
       H += w * J.transpose() * J;
@@ -150,8 +156,7 @@ void fitDepth(const PinholeCamera& camera, const std::vector<Track>& tracks,
   const int threads = omp_get_max_threads();
   std::vector<Eigen::MatrixXd> Hs(static_cast<size_t>(threads));
   std::vector<Eigen::VectorXd> gs(static_cast<size_t>(threads));
-  std::vector<Matrix3> Rt(theta.size());
-  for (size_t k = 0; k < theta.size(); ++k) Rt[k] = transposedRotation(theta[k]);
+  const std::vector<Matrix3> Rt = transposedRotations(theta);
   for (int iteration = 0; iteration < 4; ++iteration) {
     // Each thread's sums over a fixed share of the tracks, added in thread order: the same
     // figures on every run with the same thread count.
@@ -205,8 +210,7 @@ void fitDepth(const PinholeCamera& camera, const std::vector<Track>& tracks,
 double rmsResidual(const PinholeCamera& camera, const std::vector<Track>& tracks,
                    const std::vector<double>& rho, const std::vector<Vector3>& theta,
                    const std::vector<Vector3>& p) {
-  std::vector<Matrix3> Rt(theta.size());
-  for (size_t k = 0; k < theta.size(); ++k) Rt[k] = transposedRotation(theta[k]);
+  const std::vector<Matrix3> Rt = transposedRotations(theta);
   double sum = 0;
   size_t count = 0;
   for (size_t i = 0; i < tracks.size(); ++i) {
@@ -374,8 +378,7 @@ cv::Mat pixelInverseDepth(const PinholeCamera& camera, const std::vector<cv::Mat
                           const std::vector<Vector3>& theta, const std::vector<Vector3>& p,
                           const cv::Mat& prior, double variance) {
   const int W = camera.width, H = camera.height, times = static_cast<int>(theta.size());
-  std::vector<Matrix3> Rt(theta.size());
-  for (size_t k = 0; k < theta.size(); ++k) Rt[k] = transposedRotation(theta[k]);
+  const std::vector<Matrix3> Rt = transposedRotations(theta);
   cv::Mat rho(H, W, CV_32F);
 #pragma omp parallel for schedule(static)
   for (int y = 0; y < H; ++y) {

@@ -24,6 +24,10 @@ double vertexShift(double a, double b, double c, double h) {
   return std::isfinite(curvature) && curvature > 0 ? 0.5 * h * (a - c) / curvature : 0.0;
 }
 
+// The views of the search for c's grids (contrastFromMotion, contrastFromSolves): the blur
+// integral coarser than the run's, alike for every c.
+constexpr int kSearchViews = 20;
+
 }  // namespace
 
 // The observation with only the events that a neighbouring pixel supports within the time the
@@ -75,11 +79,10 @@ StartFit startFit(const PixelGridProblem& problem, const std::vector<double>& x,
 Contrast contrastFromMotion(const Observation& obs, const PinholeCamera& camera,
                             const Trajectory& motion, const cv::Mat& inverse_depth,
                             PixelGridOptions po, double ratio, bool* at_end) {
-  // The blur term does not depend on the thresholds: one problem serves every c, on at most 20
-  // views (the blur integral coarser, alike for every c, as in contrastFromSolves), and one EDI
-  // model every c's frame.
+  // The blur term does not depend on the thresholds: one problem serves every c, on at most
+  // kSearchViews views, and one EDI model every c's frame.
   const double step = std::log(2.0) / 3;
-  po.max_views = std::max(po.min_views, 20);
+  po.max_views = std::max(po.min_views, kSearchViews);
   const PixelGridProblem problem(obs, camera, motion, inverse_depth, Contrast{1, ratio}, po);
   const Frame& blurry = obs.blurry;
   const EdiModel edi(obs.events.view(), blurry.image.cols, blurry.image.rows,
@@ -117,10 +120,10 @@ ContrastAndMotion contrastFromSolves(
     const std::function<Trajectory(const std::vector<StampedPose>&)>& fit, PixelGridOptions po,
     double ratio, double c0, const BenerfOptions& o, DeblurResult& result) {
   // Ten L-BFGS steps (five left nat_text_coins_blur60 at contrastFromMotion's 0.164 where the truth
-  // is 0.2) without the motion's refinement (which did not move the estimate), on at most 20
-  // views (the blur integral coarser, alike for every c).
+  // is 0.2) without the motion's refinement (which did not move the estimate), on at most
+  // kSearchViews views.
   constexpr int kSteps = 10;
-  po.max_views = std::max(po.min_views, 20);
+  po.max_views = std::max(po.min_views, kSearchViews);
   const int64_t t0 = given.blurry.exposure_start_us, t1 = given.blurry.exposure_end_us;
   std::vector<std::pair<double, ExposureMotion>> candidates;  // log c and its registration
   const auto misfit = [&](double l) {
