@@ -29,6 +29,7 @@ BenerfOptions benerfBudget(const std::string& name) {
   o.hash.grid.levels = 8;
   if (name == "fast") {
     o.iterations = 1000;
+    o.max_views = 32;
     o.hash.grid.log2_table = 15;
   } else if (name == "balanced") {  // twice fast's steps and table
     o.iterations = 2000;
@@ -92,7 +93,10 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
                 "the fast hash-grid field or the paper's 8 x 256 MLP")
         .integer("iterations", &O::iterations, {1}, "training steps")
         .integer("views", &O::virtual_views, {0},
-                 "virtual views of the blur term (0: from the measured blur length)")
+                 "virtual views of the blur term (0: from the blur length, the pixel grid's one "
+                 "per pixel of it, up to max_views)")
+        .integer("max_views", &O::max_views, {8},
+                 "the pixel grid's most views when they follow the blur length (fast: 32, else 64)")
         .integer("knots", &O::knots, {2}, "trajectory knots")
         .choice("trajectory", &O::trajectory,
                 {{"cubic", TrajectoryKind::kCubicSE3},

@@ -451,6 +451,8 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   po.subdivision = o.cells;
   po.event_window = o.alpha;
   po.chroma_smoothness = o.chroma_smooth;
+  po.max_views = std::max(po.min_views, o.max_views);
+  if (o.virtual_views > 0) po.min_views = po.max_views = o.virtual_views;
   // Without thresholds: the scale that the registered motion explains best, refined by short
   // solves of the grid, and the motion registered between EDI's frames at the nearest candidate.
   Contrast contrast;

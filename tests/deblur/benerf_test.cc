@@ -857,6 +857,27 @@ TEST(Benerf, PixelGridKeepsEdisFrameWhereItsModelCannotTellTheBlur) {
   EXPECT_NEAR(p.at("beta"), 0.04, 1e-9);
 }
 
+// The grid's views: one per pixel of the longest image path, at most 32 at `fast` (beyond that the
+// natural suite's 60 px scenes gained nothing, BENCHMARKS.md "How many views") and 64 else
+// (`max_views`), and `views` fixes the count as it does for the fields. Planes at 120 x 90 with
+// 40 px of blur, two L-BFGS steps each.
+TEST(Benerf, PixelGridTakesOneViewPerPixelOfBlurUpToItsBoundOrTheViewsSetting) {
+  const Observation obs = presetObservation("planes", 40);
+  const DeblurRequest request{{obs.blurry.midExposure()}, {}};
+  BenerfOptions o = benerfBudget("fast");
+  o.iterations = 20;
+  const DeblurResult bounded = BenerfDeblurrer(o).run(obs, request);
+  ASSERT_EQ(bounded.parameters.at("representation_pixels"), 1.0);
+  const double blur_px = bounded.parameters.at("blur_px_motion");
+  EXPECT_GT(blur_px, 32.0);
+  EXPECT_EQ(bounded.parameters.at("virtual_views"), 32.0);
+  o.max_views = benerfBudget("balanced").max_views;
+  EXPECT_EQ(BenerfDeblurrer(o).run(obs, request).parameters.at("virtual_views"),
+            std::ceil(blur_px) + 1);
+  o.virtual_views = 12;
+  EXPECT_EQ(BenerfDeblurrer(o).run(obs, request).parameters.at("virtual_views"), 12.0);
+}
+
 // The events see brightness only, so in colour nothing but the blur term holds the grid's chroma,
 // and fine chroma fringes follow every edge. The chroma's smoothness (BenerfOptions::chroma_smooth,
 // 0.03) takes them out: the cat before bricks at half the suite's size with 16 px of blur, 30

@@ -106,7 +106,12 @@ struct BenerfOptions {
   enum class Init { kIdentity, kEvents, kFrames };
   Init init = Init::kFrames;
   int virtual_views = 0;  // n; 0: adapted to the blur length (measured from the events)
-  double alpha = 0.1;     // event window, fraction of the exposure
+  // The pixel grid's most views when they follow the blur length (PixelGridOptions::max_views):
+  // `fast` 32, else 64. At 60 px of blur the natural suite's scenes with 32 views instead of 52-60
+  // moved by -0.09 to +0.46 dB at about 0.7 times the solve's time, but sharp synthetic edges at
+  // 40 px lost up to 0.25 dB (BENCHMARKS.md, "How many views").
+  int max_views = 64;
+  double alpha = 0.1;  // event window, fraction of the exposure
   // Event windows per step, the event pixels dealt among them (the paper: one window per step). A
   // single window gives all of a step's event gradients the same two times; many windows spread
   // them over the exposure at the cost of two pose evaluations each. Measured on the standard suite
