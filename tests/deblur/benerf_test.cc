@@ -806,20 +806,22 @@ TEST(Benerf, ThresholdsNotGivenAreTheScaleThatTheMotionExplains) {
       << " dB";
 }
 
-// Where the motion registered at EDI's searched c is poor, the c that it explains best comes out
-// low; the short solves of the grid, each on a motion registered at its own c, find the scale at
-// which the solved image re-blurs closest to the frame. The cameraman before grass at half the
-// suite's size with 30 px of blur, contrast.txt removed: measured c 0.092 from the motion, 0.202
-// after five solves (the truth is 0.2), 33.4 dB against EDI's 20.0 at its searched 0.5.
+// Without thresholds: the c that the motion registered at EDI's searched c explains best, then the
+// short solves of the grid, each on a motion registered at its own c, walking to the scale at which
+// the solved image re-blurs closest to the frame. The cameraman before grass at half the suite's
+// size with 30 px of blur, contrast.txt removed: EDI's search ends at 0.5 (20.0 dB), and the motion
+// registered there was poor enough to put the c from the motion at 0.092 until each time's flows
+// started from their neighbour's; now 0.191, and three solves end at 0.205 (the truth is 0.2),
+// 33.9 dB. Both within 15% of the truth, and BeNeRF 5 dB ahead of EDI.
 TEST(Benerf, ThresholdsNotGivenAreRefinedByShortSolvesOfTheGrid) {
   const auto natural = naturalObservation("cameraman_grass", 1, 30);
   if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
   double truth = 0;
   const AtMidExposure m = withoutThresholds(*natural, &truth);
   const auto& p = m.benerf.parameters;
-  ASSERT_LT(p.at("contrast_from_motion"), 0.7 * truth)
-      << "the c from the motion is not low here: " << p.at("contrast_from_motion");
-  EXPECT_NEAR(p.at("contrast_estimated"), truth, 0.1 * truth);
+  EXPECT_NEAR(p.at("contrast_from_motion"), truth, 0.15 * truth);
+  EXPECT_GE(p.at("contrast_solves"), 3.0);
+  EXPECT_NEAR(p.at("contrast_estimated"), truth, 0.15 * truth);
   EXPECT_GT(m.benerf_psnr, m.edi_psnr + 5.0)
       << "BeNeRF " << m.benerf_psnr << " dB, EDI (c searched) " << m.edi_psnr << " dB";
 }
