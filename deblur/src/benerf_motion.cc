@@ -433,6 +433,27 @@ namespace {
 
 constexpr int kIntervals = 8;
 
+// The forward flow where it passes the forward-backward check (back to within half a pixel and 5%
+// of its length), NaN elsewhere.
+cv::Mat checkedFlow(const cv::Mat& forward, const cv::Mat& backward) {
+  cv::Mat checked = forward.clone();
+  const int W = checked.cols, H = checked.rows;
+  for (int y = 0; y < H; ++y) {
+    for (int x = 0; x < W; ++x) {
+      cv::Point2f& f = checked.at<cv::Point2f>(y, x);
+      const double qx = x + f.x, qy = y + f.y;
+      bool ok = qx >= 0 && qy >= 0 && qx < W - 1 && qy < H - 1;
+      if (ok) {
+        const cv::Point2f b = backward.at<cv::Point2f>(static_cast<int>(std::lround(qy)),
+                                                       static_cast<int>(std::lround(qx)));
+        ok = std::hypot(f.x + b.x, f.y + b.y) <= 0.5 + 0.05 * std::hypot(f.x, f.y);
+      }
+      if (!ok) f = cv::Point2f(NAN, NAN);
+    }
+  }
+  return checked;
+}
+
 // The points tracked from mid-exposure into EDI's latent frames: pixels only, so that any camera
 // can explain them.
 struct TrackedPoints {
@@ -491,45 +512,22 @@ TrackedPoints trackLatentFrames(const Observation& obs, const std::optional<Cont
   // moves a few pixels between neighbouring times but up to half the blur from mid-exposure, and
   // on fine repetitive texture DIS's coarse levels alone lock onto a wrong repeat (gravel at 50 px
   // of blur: the rigid models' residual 1.8 px, no poses).
-  std::vector<int> order;
-  for (int k = mid - 1; k >= 0; --k) order.push_back(k);
-  for (int k = mid + 1; k <= kIntervals; ++k) order.push_back(k);
-  cv::Mat inner_forward, inner_backward;  // the inner neighbour's flows, before the check
-  for (const int k : order) {
-    if (k == mid - 1 || k == mid + 1) {
-      inner_forward = cv::Mat();
-      inner_backward = cv::Mat();
-    }
-    const cv::Mat other = to8.convert(benerf_detail::logGrey(latent.frames[k].image, log));
+  for (const int step : {-1, 1}) {
+    // The inner neighbour's flows, DIS's start (it starts from a flow given at the images' size);
+    // none next to mid-exposure.
     cv::Mat forward, backward;
-    if (!inner_forward.empty()) {  // DIS starts from a flow given at the images' size
-      forward = inner_forward.clone();
-      backward = inner_backward.clone();
-    }
-    dis->calc(mid8, other, forward);
-    dis->calc(other, mid8, backward);
-    inner_forward = forward.clone();
-    inner_backward = backward.clone();
-    // The forward flow where it passes the check: back to within half a pixel and 5% of its length.
-    for (int y = 0; y < H; ++y) {
-      for (int x = 0; x < W; ++x) {
-        cv::Point2f& f = forward.at<cv::Point2f>(y, x);
-        const double qx = x + f.x, qy = y + f.y;
-        bool ok = qx >= 0 && qy >= 0 && qx < W - 1 && qy < H - 1;
-        if (ok) {
-          const cv::Point2f b = backward.at<cv::Point2f>(static_cast<int>(std::lround(qy)),
-                                                         static_cast<int>(std::lround(qx)));
-          ok = std::hypot(f.x + b.x, f.y + b.y) <= 0.5 + 0.05 * std::hypot(f.x, f.y);
-        }
-        if (!ok) f = cv::Point2f(NAN, NAN);
+    for (int k = mid + step; k >= 0 && k <= kIntervals; k += step) {
+      const cv::Mat other = to8.convert(benerf_detail::logGrey(latent.frames[k].image, log));
+      dis->calc(mid8, other, forward);
+      dis->calc(other, mid8, backward);
+      const cv::Mat checked = checkedFlow(forward, backward);
+      for (Track& tr : tracks) {
+        const cv::Point2f f =
+            checked.at<cv::Point2f>(static_cast<int>(tr.pixel.y()), static_cast<int>(tr.pixel.x()));
+        if (std::isfinite(f.x)) tr.seen[k] = {tr.pixel.x() + f.x, tr.pixel.y() + f.y};
       }
+      out.flows[static_cast<size_t>(k)] = checked;
     }
-    for (Track& tr : tracks) {
-      const cv::Point2f f =
-          forward.at<cv::Point2f>(static_cast<int>(tr.pixel.y()), static_cast<int>(tr.pixel.x()));
-      if (std::isfinite(f.x)) tr.seen[k] = {tr.pixel.x() + f.x, tr.pixel.y() + f.y};
-    }
-    out.flows[static_cast<size_t>(k)] = forward;
   }
   return out;
 }
