@@ -10,6 +10,7 @@
 #include "evkit/events/decimal.h"
 #include "evkit/events/image_io.h"
 #include "evkit/events/io.h"
+#include "evkit/events/npy.h"
 #include "evkit/spline/tum.h"
 
 namespace evkit {
@@ -35,6 +36,18 @@ std::vector<double> readNumbers(const std::string& path, size_t min_count, size_
   if (values.size() < min_count || values.size() > max_count)
     throwAtLine(path, 1, "expected " + expected);
   return values;
+}
+
+// gt/depth.npy: one float32 plane at the blurry frame's size, (H, W) or (1, H, W).
+cv::Mat readDepth(const std::string& path, const Observation& obs) {
+  NpyArray a = readNpy(path);
+  const int h = obs.blurry.image.rows, w = obs.blurry.image.cols;
+  const bool one_plane = a.shape.size() == 2 || (a.shape.size() == 3 && a.shape[0] == 1);
+  if (!one_plane || a.shape[a.shape.size() - 2] != static_cast<size_t>(h) ||
+      a.shape.back() != static_cast<size_t>(w))
+    throwInFile(path, "expected one " + std::to_string(h) + " x " + std::to_string(w) +
+                          " plane (the blurry frame's size)");
+  return cv::Mat(h, w, CV_32F, a.data.data()).clone();
 }
 
 }  // namespace
@@ -104,6 +117,7 @@ Observation loadObservation(const std::string& dir) {
       return x.exposure_start_us < y.exposure_start_us;
     });
     if (fs::exists(gt / "poses.txt")) obs.gt_poses = readTum((gt / "poses.txt").string());
+    if (fs::exists(gt / "depth.npy")) obs.gt_depth = readDepth((gt / "depth.npy").string(), obs);
     std::ifstream info(gt / "info.txt");
     for (std::string line; std::getline(info, line);) {
       if (line.rfind("blur_px ", 0) == 0) obs.gt_blur_px = std::strtod(line.c_str() + 8, nullptr);

@@ -13,7 +13,7 @@
 #include "evkit/deblur/metrics.h"
 #include "evkit/deblur/observation.h"
 #include "evkit/deblur/pixel_grid.h"
-#include "evkit/events/npy.h"
+#include "evkit/harness/speed_error.h"
 #include "evkit/synth/generator.h"
 #include "test_util.h"
 
@@ -316,9 +316,8 @@ TEST(Benerf, RotationFromEventsFollowsTheTrueMotion) {
 
 // A natural scene (python3-skimage's photographs) at half the suite's size, with the suite's
 // handheld shake: 70% of the image motion from rotation, 30% from translation.
-// `depth`: where given, the scene's depth (m) at mid-exposure.
 std::optional<Observation> naturalObservation(const std::string& scene, uint64_t seed,
-                                              double blur_px = 16, cv::Mat* depth = nullptr) {
+                                              double blur_px = 16) {
   synth::SceneOptions scene_options;
   if (!std::filesystem::exists(synth::defaultPhotoDir())) return std::nullopt;
   ScratchDir dir;
@@ -330,10 +329,6 @@ std::optional<Observation> naturalObservation(const std::string& scene, uint64_t
   o.shake.rotation_share = 0.7;
   o.shake.share_of_image_motion = true;
   synth::writeObservation(synth::makePreset(scene, scene_options), o, dir / "obs");
-  if (depth) {
-    NpyArray a = readNpy(dir / "obs/gt/depth.npy");
-    *depth = cv::Mat(o.height, o.width, CV_32F, a.data.data()).clone();
-  }
   return loadObservation(dir / "obs");
 }
 
@@ -373,38 +368,12 @@ TEST(Benerf, MotionFromLatentFramesFindsTheRotationAndTheParallax) {
   }
 }
 
-// The registration's image motion against the truth's: where the camera at the exposure's start
-// and end sees each mid-exposure pixel, by the registered poses through the registered inverse
-// depth and by the true poses through the true depth; the mean distance over the pixels that
-// `mask` marks (CV_8U), at both ends.
-double imageMotionError(const ExposureMotion& m, const Observation& obs, const cv::Mat& depth,
-                        const cv::Mat& mask) {
-  const nerf::PinholeCamera camera = obs.camera.withSize(depth.cols, depth.rows);
-  const auto mid = std::min_element(obs.gt_poses.begin(), obs.gt_poses.end(),
-                                    [&](const StampedPose& a, const StampedPose& b) {
-                                      return std::abs(a.t_us - obs.blurry.midExposure()) <
-                                             std::abs(b.t_us - obs.blurry.midExposure());
-                                    });
-  const SE3 mid_inv = mid->pose.inverse();
-  double sum = 0;
-  int count = 0;
-  for (const bool end : {false, true}) {
-    const SE3 truth = mid_inv * (end ? obs.gt_poses.back() : obs.gt_poses.front()).pose;
-    const SE3& registered = (end ? m.poses.back() : m.poses.front()).pose;
-    for (int y = 0; y < depth.rows; ++y) {
-      for (int x = 0; x < depth.cols; ++x) {
-        if (!mask.at<uint8_t>(y, x)) continue;
-        const Vector3 b = nerf::pixelDirection(camera, x, y);
-        const Vector3 X_true = truth.inverse() * (b * (depth.at<float>(y, x) / b.z()));
-        const Vector3 X_registered =
-            registered.inverse() * (b / std::max(1e-6f, m.inverse_depth.at<float>(y, x)));
-        sum +=
-            (nerf::projectPoint(camera, X_true) - nerf::projectPoint(camera, X_registered)).norm();
-        ++count;
-      }
-    }
-  }
-  return sum / std::max(count, 1);
+// The registration's image motion against the truth's (exposureMotionErrorPx) over the pixels
+// that `mask` marks.
+double imageMotionError(const ExposureMotion& m, const Observation& obs, const cv::Mat& mask) {
+  return exposureMotionErrorPx(m.poses, m.inverse_depth, obs.gt_poses, obs.gt_depth,
+                               obs.camera.withSize(mask.cols, mask.rows),
+                               obs.blurry.exposure_start_us, obs.blurry.exposure_end_us, mask);
 }
 
 // On a rocket at 2 m before a backdrop at 10 m (half the suite's size, 16 px of blur), each
@@ -417,18 +386,18 @@ double imageMotionError(const ExposureMotion& m, const Observation& obs, const c
 TEST(Benerf, EachPixelsDepthFollowsTheNearLayersEdges) {
   double near_error = 0;
   for (const uint64_t seed : {1, 2}) {
-    cv::Mat depth;
-    const auto natural = naturalObservation("hubble_rocket", seed, 16, &depth);
+    const auto natural = naturalObservation("hubble_rocket", seed, 16);
     if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
     SCOPED_TRACE("seed " + std::to_string(seed));
     const Observation& obs = *natural;
+    const cv::Mat& depth = obs.gt_depth;
     const ExposureMotion m =
         motionFromLatentFrames(obs, obs.camera.withSize(depth.cols, depth.rows), obs.contrast);
     ASSERT_EQ(m.poses.size(), 9u);
     EXPECT_TRUE(m.depth);
     EXPECT_TRUE(m.pixel_depth) << "residuals: tiles " << m.residual_depth_px << " px, pixels "
                                << m.residual_pixels_px;
-    near_error += imageMotionError(m, obs, depth, depth < 5) / 2;
+    near_error += imageMotionError(m, obs, depth < 5) / 2;
   }
   EXPECT_LT(near_error, 1.25);
 }

@@ -3,12 +3,14 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <filesystem>
 #include <opencv2/imgproc.hpp>
 
 #include "evkit/base/error.h"
 #include "evkit/deblur/metrics.h"
 #include "evkit/deblur/observation.h"
 #include "evkit/events/io.h"
+#include "evkit/events/npy.h"
 #include "evkit/synth/generator.h"
 #include "test_util.h"
 
@@ -134,7 +136,22 @@ TEST(Edi, RecordingPathExtractsTheFramesEventsAndWritesTheFolder) {
   const Observation back = loadObservation(dir / "obs");
   EXPECT_EQ(back.events.t, obs.events.t);
   EXPECT_EQ(back.blurry.exposure_end_us, obs.blurry.exposure_end_us);
+  EXPECT_TRUE(back.gt_depth.empty());
   EXPECT_THROW(observationFromRecording(dir / "rec.aedat4", 3), Error);
+
+  // The ground truth's depth: one plane at the frame's size, else an error naming the file.
+  std::filesystem::create_directories(dir / "obs/gt");
+  std::vector<float> depth(6 * 8, 2.5f);
+  writeNpy(dir / "obs/gt/depth.npy", depth.data(), {6, 8});
+  EXPECT_EQ(cv::countNonZero(loadObservation(dir / "obs").gt_depth == 2.5f), 6 * 8);
+  writeNpy(dir / "obs/gt/depth.npy", depth.data(), {8, 6});
+  try {
+    loadObservation(dir / "obs");
+    ADD_FAILURE() << "a depth map of another size was read";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("depth.npy"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("6 x 8"), std::string::npos) << e.what();
+  }
 }
 
 TEST(Metrics, PsnrSsimAndBrisque) {

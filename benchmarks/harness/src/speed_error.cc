@@ -15,6 +15,7 @@
 #include "evkit/deblur/benerf.h"
 #include "evkit/events/atomic_file.h"
 #include "evkit/events/image_io.h"
+#include "evkit/nerf/camera.h"
 #include "evkit/spline/lie.h"
 
 namespace evkit {
@@ -81,7 +82,7 @@ constexpr const char* kCsvHeader =
     "error_deg,"
     "rotation_truth_deg,iterations,nonfinite,rotation_estimated_deg,rotation_error_px,blur_truth_"
     "px,"
-    "blur_estimated_px";
+    "blur_estimated_px,motion_error_px";
 
 std::string csvNumberField(double v) {
   if (!std::isfinite(v)) return "";
@@ -108,9 +109,9 @@ std::vector<BenchRow> summaryRows(const std::vector<BenchRow>& rows, std::string
 struct Summary {
   std::string method, budget;
   double psnr = 0, ssim = 0, brisque = 0, rotation = 0, rotation_px = 0, rotation_found = 0,
-         wall = 0, psnr_exposure = 0;
-  int n = 0, n_rotation = 0, n_rotation_px = 0, n_found = 0, n_brisque = 0, n_exposure = 0,
-      failed = 0;
+         motion_px = 0, wall = 0, psnr_exposure = 0;
+  int n = 0, n_rotation = 0, n_rotation_px = 0, n_found = 0, n_motion = 0, n_brisque = 0,
+      n_exposure = 0, failed = 0;
   int64_t nonfinite = 0;
   double first_seen = 0;  // order of appearance
 };
@@ -140,6 +141,7 @@ std::vector<Summary> summarise(const std::vector<BenchRow>& rows) {
     if (std::isfinite(r.psnr_mean)) s.psnr_exposure += r.psnr_mean, ++s.n_exposure;
     if (std::isfinite(r.rotation_error_deg)) s.rotation += r.rotation_error_deg, ++s.n_rotation;
     if (std::isfinite(r.rotation_error_px)) s.rotation_px += r.rotation_error_px, ++s.n_rotation_px;
+    if (std::isfinite(r.motion_error_px)) s.motion_px += r.motion_error_px, ++s.n_motion;
     if (std::isfinite(r.rotation_estimated_deg) && r.rotation_truth_deg > 0)
       s.rotation_found += r.rotation_estimated_deg / r.rotation_truth_deg, ++s.n_found;
   }
@@ -155,6 +157,7 @@ std::vector<Summary> summarise(const std::vector<BenchRow>& rows) {
     s.rotation = s.n_rotation ? s.rotation / s.n_rotation : std::nan("");
     s.rotation_px = s.n_rotation_px ? s.rotation_px / s.n_rotation_px : std::nan("");
     s.rotation_found = s.n_found ? s.rotation_found / s.n_found : std::nan("");
+    s.motion_px = s.n_motion ? s.motion_px / s.n_motion : std::nan("");
     out.push_back(s);
   }
   std::sort(out.begin(), out.end(),
@@ -184,13 +187,15 @@ void writeGroupSummary(std::ostringstream& md, const std::vector<BenchRow>& rows
   }
   md << "\n## Speed against error: mean over the " << group << " scenes\n\n"
      << "| method | budget | PSNR (dB) | over the exposure | SSIM | BRISQUE | rotation error (°) | "
-        "at the border (px) | rotation found | wall time (s) | scenes | failed | non-finite |\n"
-     << "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+        "at the border (px) | rotation found | image motion error (px) | wall time (s) | scenes | "
+        "failed | non-finite |\n"
+     << "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const Summary& s : summarise(in_group)) {
     md << "| " << s.method << " | " << s.budget << " | " << fixedOrDash(s.n ? s.psnr : NAN, 2)
        << " | " << fixedOrDash(s.psnr_exposure, 2) << " | " << fixedOrDash(s.n ? s.ssim : NAN, 4)
        << " | " << fixedOrDash(s.brisque, 1) << " | " << fixedOrDash(s.rotation, 3) << " | "
        << fixedOrDash(s.rotation_px, 2) << " | " << fixedOrDash(s.rotation_found, 3) << " | "
+       << fixedOrDash(s.motion_px, 2) << " | "
        << fixedOrDash(s.n ? s.wall : NAN, s.wall < 1 ? 3 : 1) << " | " << s.n << " | " << s.failed
        << " | " << s.nonfinite << " |\n";
   }
@@ -235,6 +240,18 @@ void writePerScene(std::ostringstream& md, const std::vector<BenchRow>& rows,
 }
 
 // R_a(start)^T R_a(end) against the same for b: the rotation between the two exposure rotations.
+// The pose at t_us, between the stamped poses around it (geodesic on SE(3)); clamped to the ends.
+SE3 poseAtTime(const std::vector<StampedPose>& poses, int64_t t_us) {
+  const auto after = std::lower_bound(poses.begin(), poses.end(), t_us,
+                                      [](const StampedPose& p, int64_t t) { return p.t_us < t; });
+  if (after == poses.begin()) return poses.front().pose;
+  if (after == poses.end()) return poses.back().pose;
+  const StampedPose& before = *(after - 1);
+  const double s =
+      static_cast<double>(t_us - before.t_us) / static_cast<double>(after->t_us - before.t_us);
+  return before.pose * expSE3(s * logSE3(before.pose.inverse() * after->pose));
+}
+
 Quaternion exposureRotationError(const std::vector<StampedPose>& a,
                                  const std::vector<StampedPose>& b) {
   const Quaternion qa = a.front().pose.rotation().conjugate() * a.back().pose.rotation();
@@ -310,6 +327,51 @@ double exposureRotationErrorDeg(const std::vector<StampedPose>& a,
   return logSO3(exposureRotationError(a, b)).norm() * 180.0 / M_PI;
 }
 
+double exposureMotionErrorPx(const std::vector<StampedPose>& estimate, const cv::Mat& inverse_depth,
+                             const std::vector<StampedPose>& truth, const cv::Mat& depth,
+                             const PinholeCamera& camera, int64_t start_us, int64_t end_us,
+                             const cv::Mat& mask) {
+  const cv::Size size(camera.width, camera.height);
+  if (estimate.size() < 2 || truth.size() < 2 || size.area() <= 0 || inverse_depth.size() != size ||
+      depth.size() != size || inverse_depth.type() != CV_32F || depth.type() != CV_32F ||
+      (!mask.empty() && (mask.size() != size || mask.type() != CV_8U)))
+    return std::nan("");
+  const int64_t mid_us = start_us + (end_us - start_us) / 2;
+  // From the mid-exposure camera into the camera at each end: a point of inverse depth rho on the
+  // mid camera's ray x (z = 1) is seen along R x + rho p (rho = 0: at infinity).
+  struct Relative {
+    Matrix3 R;
+    Vector3 p;
+  };
+  const auto relative = [&](const std::vector<StampedPose>& poses) {
+    const SE3 mid = poseAtTime(poses, mid_us);
+    std::array<Relative, 2> out;
+    for (int e = 0; e < 2; ++e) {
+      const SE3 to = poseAtTime(poses, e == 0 ? start_us : end_us).inverse() * mid;
+      out[e] = {to.rotationMatrix(), to.translation()};
+    }
+    return out;
+  };
+  const std::array<Relative, 2> est = relative(estimate), tru = relative(truth);
+  double sum = 0;
+  int64_t n = 0;
+  for (int y = 0; y < size.height; ++y) {
+    for (int x = 0; x < size.width; ++x) {
+      const double z = depth.at<float>(y, x), rho_est = inverse_depth.at<float>(y, x);
+      if ((!mask.empty() && !mask.at<uint8_t>(y, x)) || !std::isfinite(rho_est)) continue;
+      const double rho = std::isfinite(z) && z > 0 ? 1.0 / z : 0.0;
+      const Vector3 ray = nerf::pixelDirection(camera, x, y);
+      for (int e = 0; e < 2; ++e) {
+        const Vector3 a = est[e].R * ray + rho_est * est[e].p, b = tru[e].R * ray + rho * tru[e].p;
+        if (!(a.z() > 1e-9) || !(b.z() > 1e-9)) continue;  // behind the camera
+        sum += (nerf::projectPoint(camera, a) - nerf::projectPoint(camera, b)).norm();
+        ++n;
+      }
+    }
+  }
+  return n ? sum / static_cast<double>(n) : std::nan("");
+}
+
 BenchRow runBench(const Observation& obs, const std::string& group, const std::string& scene,
                   const std::string& what, const BenchRun& run, const std::string& out_dir,
                   MethodReport* report, const std::function<void(int, int, double)>& progress) {
@@ -343,6 +405,10 @@ BenchRow runBench(const Observation& obs, const std::string& group, const std::s
       row.rotation_error_px = exposureRotationErrorPx(
           *r.result.trajectory, obs.gt_poses,
           obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows));
+      row.motion_error_px = exposureMotionErrorPx(
+          *r.result.trajectory, r.result.disparity, obs.gt_poses, obs.gt_depth,
+          obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows),
+          obs.blurry.exposure_start_us, obs.blurry.exposure_end_us);
     }
     // The blur length the method worked with: from its motion where it has one (the pixel grid),
     // else as measured through EDI.
@@ -367,7 +433,7 @@ std::vector<BenchRow> readBenchCsv(const std::string& path) {
   if (!std::getline(in, line) || line != kCsvHeader) return rows;  // another layout: start afresh
   while (std::getline(in, line)) {
     const std::vector<std::string> f = csvSplit(line);
-    if (f.size() != 19) continue;
+    if (f.size() != 20) continue;
     BenchRow r;
     r.group = f[0], r.scene = f[1], r.what = f[2], r.method = f[3], r.budget = f[4],
     r.status = f[5];
@@ -379,6 +445,7 @@ std::vector<BenchRow> readBenchCsv(const std::string& path) {
     r.nonfinite = static_cast<int64_t>(csvNumber(f[14]));
     r.rotation_estimated_deg = csvNumber(f[15]), r.rotation_error_px = csvNumber(f[16]);
     r.blur_truth_px = csvNumber(f[17]), r.blur_estimated_px = csvNumber(f[18]);
+    r.motion_error_px = csvNumber(f[19]);
     rows.push_back(r);
   }
   return rows;
@@ -398,7 +465,7 @@ void writeBenchResults(const std::string& dir, const std::vector<BenchRow>& rows
         << csvNumberField(r.rotation_truth_deg) << ',' << csvNumberField(r.iterations) << ','
         << r.nonfinite << ',' << csvNumberField(r.rotation_estimated_deg) << ','
         << csvNumberField(r.rotation_error_px) << ',' << csvNumberField(r.blur_truth_px) << ','
-        << csvNumberField(r.blur_estimated_px) << "\n";
+        << csvNumberField(r.blur_estimated_px) << ',' << csvNumberField(r.motion_error_px) << "\n";
   }
   writeFileAtomically(dir + "/results.csv", csv.str());
 
@@ -406,24 +473,29 @@ void writeBenchResults(const std::string& dir, const std::vector<BenchRow>& rows
   md << "# " << title << "\n\n"
      << "PSNR, SSIM and BRISQUE of the mid-exposure frame; rotation error: the angle between the "
         "estimated and the true rotation over the exposure, and that error as image motion at the "
-        "image border (px); rotation found: the estimated rotation over the true one; over the "
-        "exposure: the mean PSNR over every ground-truth time (the exposure's start, middle and "
+        "image border (px); rotation found: the estimated rotation over the true one; image motion "
+        "error: the mean distance between where the estimate (its trajectory through its depths) "
+        "and the truth move each pixel from mid-exposure to the exposure's ends, the part of the "
+        "motion the data can tell apart (a rotation and a translation can move the image alike); "
+        "over the exposure: the mean PSNR over every ground-truth time (the exposure's start, "
+        "middle and "
         "end). Means over the scenes a run finished.\n";
   for (const std::string& group : groupsOf(rows)) writeGroupSummary(md, rows, group);
   for (const char* group : {"hard", "natural"}) writePerScene(md, rows, group);
   md << "\n## Every run\n\n| group | scene | method | budget | PSNR (dB) | SSIM | BRISQUE | "
-        "rotation error (°) | at the border (px) | rotation found (°) | true rotation (°) | blur "
-        "found (px) | true blur (px) | iterations | wall time (s) | health "
-        "|\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+        "rotation error (°) | at the border (px) | rotation found (°) | true rotation (°) | image "
+        "motion error (px) | blur found (px) | true blur (px) | iterations | wall time (s) | "
+        "health "
+        "|\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const BenchRow& r : rows) {
     md << "| " << r.group << " | " << r.scene << " | " << r.method << " | " << r.budget << " | "
        << fixedOrDash(r.psnr, 2) << " | " << fixedOrDash(r.ssim, 4) << " | "
        << fixedOrDash(r.brisque, 1) << " | " << fixedOrDash(r.rotation_error_deg, 3) << " | "
        << fixedOrDash(r.rotation_error_px, 2) << " | " << fixedOrDash(r.rotation_estimated_deg, 3)
        << " | " << fixedOrDash(r.rotation_truth_deg, 3) << " | "
-       << fixedOrDash(r.blur_estimated_px, 1) << " | " << fixedOrDash(r.blur_truth_px, 1) << " | "
-       << fixedOrDash(r.iterations, 0) << " | " << fixedOrDash(r.wall_s, r.wall_s < 1 ? 3 : 1)
-       << " | " << health(r) << " |\n";
+       << fixedOrDash(r.motion_error_px, 2) << " | " << fixedOrDash(r.blur_estimated_px, 1) << " | "
+       << fixedOrDash(r.blur_truth_px, 1) << " | " << fixedOrDash(r.iterations, 0) << " | "
+       << fixedOrDash(r.wall_s, r.wall_s < 1 ? 3 : 1) << " | " << health(r) << " |\n";
   }
   writeFileAtomically(dir + "/results.md", md.str());
   drawSpeedError(rows, title, dir + "/speed_vs_error.png");

@@ -32,7 +32,10 @@ struct Observation {
   std::vector<Frame> gt_frames;
   std::vector<StampedPose> gt_poses;
   double gt_blur_px = std::nan("");  // the longest image path of a point (gt/info.txt's blur_px)
-  std::string source;                // where it came from, for reports
+  // Each pixel's depth (z, scene units) at mid-exposure, CV_32F at the frame's size (gt/depth.npy;
+  // empty when absent). Not finite or not positive: nothing there (the background at infinity).
+  cv::Mat gt_depth;
+  std::string source;  // where it came from, for reports
 };
 
 // Reads an observation folder: blurry.png, exposure.txt, events.{h5,txt,aedat4,...}, optional

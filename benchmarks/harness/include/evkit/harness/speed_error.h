@@ -42,6 +42,9 @@ struct BenchRow {
   // The rotation error as image motion: the largest displacement (px) of the image's corners and
   // edge midpoints under the error rotation (the trajectory's error at the image border).
   double rotation_error_px = std::nan("");
+  // The image motion's error (px, exposureMotionErrorPx): what the data can tell apart, where the
+  // rotation's split from the translation may not be.
+  double motion_error_px = std::nan("");
   double blur_truth_px = std::nan(""), blur_estimated_px = std::nan("");  // gt/info.txt; method
   double iterations = std::nan("");
   int64_t nonfinite = 0;  // NaN or Inf values in the output frames
@@ -66,6 +69,19 @@ double exposureRotationDeg(const std::vector<StampedPose>& poses);
 // under the rotation between a's and b's exposure rotations.
 double exposureRotationErrorPx(const std::vector<StampedPose>& a, const std::vector<StampedPose>& b,
                                const PinholeCamera& camera);
+
+// The image motion's error (px): the mean over the pixels of the distance between where the
+// estimate and the truth move each pixel from mid-exposure to the exposure's start and to its end
+// (the mean of the two ends). Each pixel moves through its depth at mid-exposure: the truth's depth
+// map (z; not finite or not positive: at infinity) and the estimate's inverse depth map (the
+// method's own scale, that of its translation; 0: at infinity). A rotation and a translation
+// through the scene's depths can move the image alike, so the rotation's error alone may be large
+// where this one is small; this is the error a deblurring pays for. Poses between stamps are
+// interpolated; `mask` (CV_8U, optional) picks the pixels counted. NaN where either is missing.
+double exposureMotionErrorPx(const std::vector<StampedPose>& estimate, const cv::Mat& inverse_depth,
+                             const std::vector<StampedPose>& truth, const cv::Mat& depth,
+                             const PinholeCamera& camera, int64_t start_us, int64_t end_us,
+                             const cv::Mat& mask = cv::Mat());
 
 // results.csv (every row), results.md (the mean per method and budget, per scene, hard cases with
 // their numerical health) and speed_vs_error.png, each written atomically into `dir`.
