@@ -433,9 +433,6 @@ namespace {
 
 constexpr int kIntervals = 8;
 
-// The share of the simpler model's residual a richer one must stay under to be chosen.
-constexpr double kRicherModel = 0.85;
-
 // The forward flow where it passes the forward-backward check (back to within half a pixel and 5%
 // of its length), NaN elsewhere.
 cv::Mat checkedFlow(const cv::Mat& forward, const cv::Mat& backward) {
@@ -574,15 +571,10 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points) {
   }
   std::nth_element(off.begin(), off.begin() + off.size() * 95 / 100, off.end());
   m.parallax_px = off[off.size() * 95 / 100];
-  // Each richer model must earn its place: the tiles' depths by observed parallax and a smaller
-  // residual than the plane's, the plane's translation by a smaller residual than the rotation's
-  // alone (where no translation is observed, it only trades with the rotation).
-  m.depth = m.parallax_px > 1.0 && tiles.residual_px < kRicherModel * plane.residual_px;
-  m.translation = m.depth || plane.residual_px < kRicherModel * rotation.residual_px;
-  RigidFit chosen = m.depth ? tiles : m.translation ? plane : rotation;
-  m.inverse_depth = m.translation ? inverseDepthMap(camera, m.depth ? tile_model : plane_model,
-                                                    chosen, kTilesX, kTilesY)
-                                  : cv::Mat::zeros(camera.height, camera.width, CV_32F);
+  m.depth = m.parallax_px > 1.0 && tiles.residual_px < 0.85 * plane.residual_px;
+  RigidFit chosen = m.depth ? tiles : plane;
+  m.inverse_depth =
+      inverseDepthMap(camera, m.depth ? tile_model : plane_model, chosen, kTilesX, kTilesY);
   if (m.depth) {
     // Each pixel's own depth from the dense flows, then each time's motion again through it.
     const cv::Mat tile_map = m.inverse_depth;

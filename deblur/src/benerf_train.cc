@@ -81,7 +81,6 @@ struct Start {
 // The registration's figures in the summary.
 void reportMotion(const ExposureMotion& motion, DeblurResult& result) {
   result.parameters["representation_depth"] = motion.depth ? 1 : 0;
-  result.parameters["representation_translation"] = motion.translation ? 1 : 0;
   result.parameters["parallax_px"] = motion.parallax_px;
   result.parameters["motion_residual_rotation_px"] = motion.residual_rotation_px;
   result.parameters["motion_residual_plane_px"] = motion.residual_plane_px;

@@ -315,9 +315,9 @@ TEST(Benerf, RotationFromEventsFollowsTheTrueMotion) {
 }
 
 // A natural scene (python3-skimage's photographs) at half the suite's size, with the suite's
-// handheld shake: 70% of the image motion from rotation, 30% from translation (rotation_share).
+// handheld shake: 70% of the image motion from rotation, 30% from translation.
 std::optional<Observation> naturalObservation(const std::string& scene, uint64_t seed,
-                                              double blur_px = 16, double rotation_share = 0.7) {
+                                              double blur_px = 16) {
   synth::SceneOptions scene_options;
   if (!std::filesystem::exists(synth::defaultPhotoDir())) return std::nullopt;
   ScratchDir dir;
@@ -326,30 +326,19 @@ std::optional<Observation> naturalObservation(const std::string& scene, uint64_t
   o.height = 130;
   o.shake.blur_px = blur_px;
   o.shake.seed = seed;
-  o.shake.rotation_share = rotation_share;
+  o.shake.rotation_share = 0.7;
   o.shake.share_of_image_motion = true;
   synth::writeObservation(synth::makePreset(scene, scene_options), o, dir / "obs");
   return loadObservation(dir / "obs");
 }
 
-// The registration's image motion against the truth's (exposureMotionErrorPx) over the pixels
-// that `mask` marks.
-double imageMotionError(const ExposureMotion& m, const Observation& obs, const cv::Mat& mask) {
-  return exposureMotionErrorPx(m.poses, m.inverse_depth, obs.gt_poses, obs.gt_depth,
-                               obs.camera.withSize(mask.cols, mask.rows),
-                               obs.blurry.exposure_start_us, obs.blurry.exposure_end_us, mask);
-}
-
 // The motion registered between EDI's latent frames, on natural scenes at half the suite's size:
-// the depth model is chosen on a rocket at 2 m before a backdrop at 10 m and not on a photograph at
-// one depth. Everywhere each pixel moves within 0.8 px of the truth at the exposure's ends
-// (measured 0.35-0.64 px). On the rocket the rotation over the exposure (3.1 degrees, 8.5 px at
-// the image's border) is within 1.5 degrees of the truth and closer to it than the events' one
-// constant rotation (rotationFromEvents); measured 0.9-1.3 degrees against 1.4-3.2. On the one
-// plane a sideways translation and a tilt move the image alike, and the part of the rotation the
-// translation mimics is not observable: with seed 2 the plane's translation does not take away
-// enough of the rotation's residual, the rotation alone is chosen and is 1.9 degrees off, while
-// the image moves within 0.51 px of the truth.
+// the representation chosen is the plane on a photograph at one depth and the depth model on a
+// rocket at 2 m before a backdrop at 10 m. Over the exposure (3.1 degrees, 8.5 px at the image's
+// border) the rotation is within 1.5 degrees of the truth and closer to it than the events' one
+// constant rotation (rotationFromEvents); measured 0.3-1.4 degrees against 1.4-3.2.
+// (Where the scene is one plane, a sideways translation and a tilt move the image alike: the part
+// of the rotation the translation mimics is not observable.)
 TEST(Benerf, MotionFromLatentFramesFindsTheRotationAndTheParallax) {
   for (const bool card : {false, true}) {
     for (const uint64_t seed : {1, 2}) {
@@ -369,8 +358,6 @@ TEST(Benerf, MotionFromLatentFramesFindsTheRotationAndTheParallax) {
       };
       const Vector3 estimate =
           logSO3(m.poses.front().pose.rotation().inverse() * m.poses.back().pose.rotation());
-      EXPECT_LT(imageMotionError(m, obs, cv::Mat(130, 174, CV_8U, 255)), 0.8);
-      if (!card) continue;
       const Vector3 events = rotationFromEvents(obs, camera, measureBlurLength(obs));
       EXPECT_LT(error_deg(estimate), 1.5)
           << "estimate " << estimate.transpose() << ", truth " << truth.transpose();
@@ -381,27 +368,12 @@ TEST(Benerf, MotionFromLatentFramesFindsTheRotationAndTheParallax) {
   }
 }
 
-// Where the camera only turns, the rotation alone is chosen (a translation would only trade with
-// it) and the rotation over the exposure (7.0 degrees) is found within 0.15 degrees (measured
-// 0.08); where it also slides before layers at several depths, the depths are chosen. Two scenes
-// at half the suite's size, 24 px of blur.
-TEST(Benerf, TheRotationAloneIsChosenWhereNoTranslationShows) {
-  for (const double share : {1.0, 0.5}) {
-    const auto natural = naturalObservation("four_layers", 3, 24, share);
-    if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
-    const Observation& obs = *natural;
-    SCOPED_TRACE("rotation's share of the image motion " + std::to_string(share));
-    const ExposureMotion m =
-        motionFromLatentFrames(obs, obs.camera.withSize(174, 130), obs.contrast);
-    ASSERT_EQ(m.poses.size(), 9u);
-    EXPECT_EQ(m.translation, share < 1)
-        << "residuals: rotation " << m.residual_rotation_px << " px, plane " << m.residual_plane_px;
-    EXPECT_EQ(m.depth, share < 1) << "parallax " << m.parallax_px << " px";
-    if (share < 1) continue;
-    EXPECT_EQ(cv::countNonZero(m.inverse_depth), 0);
-    const double error_deg = exposureRotationErrorDeg(m.poses, obs.gt_poses);
-    EXPECT_LT(error_deg, 0.15) << "of " << exposureRotationDeg(obs.gt_poses) << " degrees";
-  }
+// The registration's image motion against the truth's (exposureMotionErrorPx) over the pixels
+// that `mask` marks.
+double imageMotionError(const ExposureMotion& m, const Observation& obs, const cv::Mat& mask) {
+  return exposureMotionErrorPx(m.poses, m.inverse_depth, obs.gt_poses, obs.gt_depth,
+                               obs.camera.withSize(mask.cols, mask.rows),
+                               obs.blurry.exposure_start_us, obs.blurry.exposure_end_us, mask);
 }
 
 // On a rocket at 2 m before a backdrop at 10 m (half the suite's size, 16 px of blur), each

@@ -232,31 +232,27 @@ Vector3 rotationFromEvents(const Observation& obs, const nerf::PinholeCamera& ca
 // through one plane (a homography per time); the same through an inverse depth per tile of about
 // 24 x 24 px. The scale is not observable: the nearest points (95th percentile of the inverse
 // depth) are put at depth 1.5, the NDC near plane being at 1. The representation chosen is the
-// simplest the data asks for: the plane where its translation takes away at least 15% of the
-// rotation's residual (else the rotation alone, every point at infinity: a sideways translation
-// that does not show in the data only trades with the rotation), and the tiles' depths where the
-// parallax is observed: they move the image off the best plane's motion by more than 1 px over the
-// exposure (95th percentile of the tracks) and take away at least 15% of the plane's residual.
-// Where the depths are chosen, each pixel then takes its own inverse depth from its dense flows
-// (Gauss-Newton on the flows at the 8 other times, from the tiles' value, then a 5 x 5 median), and
-// each time's motion is fitted again through them, twice; the tiles' depths blur a near layer into
-// its surround over a tile and more (a rocket at 2 m before a backdrop at 10 m: 1.3-1.8 px of image
-// motion error on the rocket, per pixel 0.8-1.2). That refinement is kept where it lowers the
-// tracks' residual (pixel_depth). Where the chosen model's RMS residual is above 1 px (the rigid
-// camera does not explain the registration), or fewer than 50 points are tracked, there are no
-// poses.
+// plane unless the parallax is observed in the data: the tiles' depths move the image off the best
+// plane's motion by more than 1 px over the exposure (95th percentile of the tracks) and take away
+// at least 15% of the plane's residual. Where the depths are chosen, each pixel then takes its own
+// inverse depth from its dense flows (Gauss-Newton on the flows at the 8 other times, from the
+// tiles' value, then a 5 x 5 median), and each time's motion is fitted again through them, twice;
+// the tiles' depths blur a near layer into its surround over a tile and more (a rocket at 2 m
+// before a backdrop at 10 m: 1.3-1.8 px of image motion error on the rocket, per pixel 0.8-1.2).
+// That refinement is kept where it lowers the tracks' residual (pixel_depth). Where the chosen
+// model's RMS residual is above 1 px (the rigid camera does not explain the registration), or
+// fewer than 50 points are tracked, there are no poses.
 struct ExposureMotion {
   std::vector<StampedPose> poses;  // T_mid_t: the camera at each time in the mid-exposure frame
-  bool depth = false;              // the depth model chosen (else the plane or the rotation)
-  bool translation = false;        // a translation (the plane or the depths; else the rotation)
+  bool depth = false;              // the depth model chosen (else the plane)
   double parallax_px = 0;  // the tiles' image motion off the best plane's, over the exposure
   double residual_rotation_px = 0, residual_plane_px = 0,
          residual_depth_px = 0;   // RMS of each model's residuals
   bool pixel_depth = false;       // the depth model refined to each pixel's own depth
   double residual_pixels_px = 0;  // its RMS residual
   int tracks = 0;                 // textured points tracked
-  // The chosen model's inverse depth (1 / z in the poses' units; 0 for the rotation alone) at every
-  // pixel of the mid-exposure frame (float32); empty without poses.
+  // The chosen model's inverse depth (1 / z in the poses' units) at every pixel of the mid-exposure
+  // frame (float32); empty without poses.
   cv::Mat inverse_depth;
 };
 ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamera& camera,
