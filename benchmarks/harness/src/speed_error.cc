@@ -239,7 +239,6 @@ void writePerScene(std::ostringstream& md, const std::vector<BenchRow>& rows,
   }
 }
 
-// R_a(start)^T R_a(end) against the same for b: the rotation between the two exposure rotations.
 // The pose at t_us, between the stamped poses around it (geodesic on SE(3)); clamped to the ends.
 SE3 poseAtTime(const std::vector<StampedPose>& poses, int64_t t_us) {
   const auto after = std::lower_bound(poses.begin(), poses.end(), t_us,
@@ -252,6 +251,7 @@ SE3 poseAtTime(const std::vector<StampedPose>& poses, int64_t t_us) {
   return before.pose * expSE3(s * logSE3(before.pose.inverse() * after->pose));
 }
 
+// R_a(start)^T R_a(end) against the same for b: the rotation between the two exposure rotations.
 Quaternion exposureRotationError(const std::vector<StampedPose>& a,
                                  const std::vector<StampedPose>& b) {
   const Quaternion qa = a.front().pose.rotation().conjugate() * a.back().pose.rotation();
@@ -400,14 +400,13 @@ BenchRow runBench(const Observation& obs, const std::string& group, const std::s
       for (int i = 0; i < values.cols; ++i) row.nonfinite += !std::isfinite(values.at<float>(0, i));
     }
     if (r.result.trajectory) {
+      const PinholeCamera camera =
+          obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows);
       row.rotation_error_deg = exposureRotationErrorDeg(*r.result.trajectory, obs.gt_poses);
       row.rotation_estimated_deg = exposureRotationDeg(*r.result.trajectory);
-      row.rotation_error_px = exposureRotationErrorPx(
-          *r.result.trajectory, obs.gt_poses,
-          obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows));
+      row.rotation_error_px = exposureRotationErrorPx(*r.result.trajectory, obs.gt_poses, camera);
       row.motion_error_px = exposureMotionErrorPx(
-          *r.result.trajectory, r.result.disparity, obs.gt_poses, obs.gt_depth,
-          obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows),
+          *r.result.trajectory, r.result.disparity, obs.gt_poses, obs.gt_depth, camera,
           obs.blurry.exposure_start_us, obs.blurry.exposure_end_us);
     }
     // The blur length the method worked with: from its motion where it has one (the pixel grid),
@@ -478,8 +477,7 @@ void writeBenchResults(const std::string& dir, const std::vector<BenchRow>& rows
         "and the truth move each pixel from mid-exposure to the exposure's ends, the part of the "
         "motion the data can tell apart (a rotation and a translation can move the image alike); "
         "over the exposure: the mean PSNR over every ground-truth time (the exposure's start, "
-        "middle and "
-        "end). Means over the scenes a run finished.\n";
+        "middle and end). Means over the scenes a run finished.\n";
   for (const std::string& group : groupsOf(rows)) writeGroupSummary(md, rows, group);
   for (const char* group : {"hard", "natural"}) writePerScene(md, rows, group);
   md << "\n## Every run\n\n| group | scene | method | budget | PSNR (dB) | SSIM | BRISQUE | "
