@@ -173,6 +173,9 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
         .number("mid_robust", &O::mid_robust, {0},
                 "the pixel grid's comparison with mid-exposure is pseudo-Huber beyond this many "
                 "log units (0: squares)")
+        .number("smooth", &O::smooth, {0},
+                "the pixel grid's smoothness of the log image between neighbouring cells (0: "
+                "chosen by held-out events)")
         .number("chroma_smooth", &O::chroma_smooth, {0},
                 "the pixel grid's smoothness of the chroma between neighbouring cells (colour)")
         .flag("calibrate", &O::calibrate,

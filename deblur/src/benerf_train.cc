@@ -4,7 +4,10 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <cstdio>
+#include <limits>
 #include <numbers>
 
 #include "benerf_checkpoint.h"
@@ -427,6 +430,35 @@ constexpr double kBetaContrast = 0.2;
 // scenes where the solve ended below its start had 0.54-0.93, those where it gained 0.04-0.37.
 constexpr double kKeepStart = 0.5;
 
+// The smoothness candidates, in the order tried: PixelGridOptions' default first.
+constexpr std::array<double, 3> kSmoothness{0.01, 0.03, 0.1};
+
+// The grid's smoothness (BenerfOptions::smooth): each candidate's solve from x, with a quarter of
+// the pixels' events held out, scored by the held-out pixels' comparisons with mid-exposure; the
+// candidates in turn while the score falls. Each solve takes a quarter of the main solve's steps
+// (at half, every choice on the four suites was the same but one of 2%), and stops at the
+// budget's deadline.
+double chooseSmoothness(const PixelGridProblem& problem, const std::vector<double>& x, int steps,
+                        Clock::time_point deadline, DeblurResult& result) {
+  PixelGridProblem held = problem;
+  held.holdOutEvents();
+  const int held_steps = std::max(10, steps / 4);
+  double best = std::numeric_limits<double>::infinity(), chosen = kSmoothness.front();
+  for (const double smoothness : kSmoothness) {
+    held.setSmoothness(smoothness);
+    std::vector<double> trial = x;
+    held.solve(trial, held_steps, nullptr, deadline);
+    const double score = held.heldOutEventTerm(trial);
+    char name[32];
+    std::snprintf(name, sizeof name, "held_out_events_%g", smoothness);
+    result.parameters[name] = score;
+    if (!(score < best)) break;
+    best = score;
+    chosen = smoothness;
+  }
+  return chosen;
+}
+
 // The pixel-grid scene (pixel_grid.cc) on the registered motion (the caller runs it only where the
 // registration gave one), the image found from EDI's mid-exposure frame. Without thresholds it
 // declines (returns false, nothing rendered) where the c it finds is at an end of its range: there
@@ -451,6 +483,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   po.subdivision = o.cells;
   po.event_window = o.alpha;
   po.chroma_smoothness = o.chroma_smooth;
+  if (o.smooth > 0) po.smoothness = o.smooth;
   po.max_views = std::max(po.min_views, o.max_views);
   if (o.virtual_views > 0) po.min_views = po.max_views = o.virtual_views;
   // Without thresholds: the scale that the registered motion explains best, refined by short
@@ -525,6 +558,13 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   result.parameters["start_blur_misfit"] = at_start.misfit;
   result.parameters["start_change"] = at_start.change;
   result.parameters["start_kept"] = keep_start ? 1 : 0;
+  if (!keep_start && !(o.smooth > 0)) {
+    const auto choice_start = Clock::now();
+    po.smoothness = chooseSmoothness(problem, x, steps, deadline, result);
+    problem.setSmoothness(po.smoothness);
+    result.timings_s["smoothness"] = secondsSince(choice_start);
+  }
+  result.parameters["smoothness"] = po.smoothness;
   int iterations = 0;
   if (keep_start)
     terms = at_start.terms;

@@ -342,7 +342,8 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
         // Each view against mid-exposure (robust), and each view `lag` views on against it
         // (squares): the log change against the events in between (the change since mid
         // telescopes).
-        for (int k = 0; k < V; ++k) {
+        const bool held = !held_out_.empty() && held_out_[pixel];
+        for (int k = 0; k < V && !held; ++k) {
           const auto a = static_cast<size_t>(k);
           const double r = logs[a] - mid_log - change_[a * N + pixel];
           double weight;
@@ -689,6 +690,48 @@ Eigen::VectorXd PixelGridProblem::motionGradient(const std::vector<double>& u, i
   Eigen::VectorXd gradient;
   normalEquations(x, stride, hessian, gradient);
   return 2 * gradient;  // of the sum of weighted squares
+}
+
+void PixelGridProblem::holdOutEvents() {
+  const int W = camera_.width, H = camera_.height;
+  held_out_.assign(directions_.size(), 0);
+  for (int y = 0; y < H; ++y) {
+    for (int x = 0; x < W; ++x) {
+      // Every fourth block of each row of blocks, shifted by one block from row to row.
+      if ((x / 8 + y / 8) % 4 == 0) held_out_[static_cast<size_t>(y) * W + x] = 1;
+    }
+  }
+}
+
+double PixelGridProblem::heldOutEventTerm(const std::vector<double>& u) const {
+  if (held_out_.empty()) return 0;
+  const std::vector<double> x = intensities(u);
+  const int W = camera_.width, H = camera_.height, C = channels_, S = options_.subdivision,
+            V = views_;
+  const size_t N = directions_.size();
+  const LogMapping& log = options_.log;
+  double sum = 0;
+  int64_t count = 0;
+#pragma omp parallel for reduction(+ : sum, count) schedule(static)
+  for (int y = 0; y < H; ++y) {
+    for (int px = 0; px < W; ++px) {
+      const size_t pixel = static_cast<size_t>(y) * W + px;
+      if (!held_out_[pixel]) continue;
+      const size_t mid =
+          (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
+      const double mid_log = log.logOf(std::max(0.0, nerf::greyOf(&x[mid], C)));
+      for (int k = 0; k < V; ++k) {
+        double value[3];
+        sample(x.data(), canvas_w_, C, taps_[static_cast<size_t>(k) * N + pixel], value);
+        const double r = log.logOf(std::max(0.0, nerf::greyOf(value, C))) - mid_log -
+                         change_[static_cast<size_t>(k) * N + pixel];
+        double weight;
+        sum += eventPenalty(r, &weight);
+        ++count;
+      }
+    }
+  }
+  return count ? sum / static_cast<double>(count) : 0.0;
 }
 
 void PixelGridProblem::setMotion(const Trajectory& motion) {

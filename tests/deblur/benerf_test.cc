@@ -567,9 +567,10 @@ TEST(PixelGrid, GradientsMatchCentralDifferences) {
       o.event_robust = lin_log ? 0.0 : 0.1;  // the squared and the pseudo-Huber penalties
       o.event_window = colour ? 0.3 : 0.0;   // with and without the short windows
       o.chroma_smoothness = 0.3;             // in colour, the chroma's smoothness
-      const PixelGridProblem problem(obs, scene.camera, scene.motion, inverse_depth,
-                                     Contrast{0.2, 0.25}, o);
+      PixelGridProblem problem(obs, scene.camera, scene.motion, inverse_depth, Contrast{0.2, 0.25},
+                               o);
       ASSERT_GT(problem.margin(), 0);
+      if (colour) problem.holdOutEvents();  // the held-out pixels' events out of the loss
       std::vector<double> x = problem.start(obs.blurry.image);
       std::mt19937_64 rng(7);
       std::uniform_real_distribution<double> jitter(-0.3, 0.3);
@@ -608,6 +609,32 @@ TEST(PixelGrid, GradientsMatchCentralDifferences) {
       }
     }
   }
+}
+
+// The held-out pixels (one 8 x 8 block in four) leave the event term, which keeps its
+// normalisation over every pixel, and heldOutEventTerm is their comparisons' mean: on 24 x 18
+// pixels the top-left block and the two rows of the bottom-right one, 80 pixels.
+TEST(PixelGrid, HeldOutPixelsLeaveTheEventTermAndAreScoredApart) {
+  const GridScene scene = gridScene(false);
+  PixelGridOptions o;
+  o.smoothness = 0;  // the event term alone besides the blur term
+  PixelGridProblem problem(scene.obs, scene.camera, scene.motion, cv::Mat(), Contrast{0.2, 0.25},
+                           o);
+  std::vector<double> x = problem.start(scene.obs.blurry.image);
+  std::mt19937_64 rng(3);
+  std::uniform_real_distribution<double> jitter(-0.2, 0.2);
+  for (double& v : x) v += jitter(rng);
+  EXPECT_EQ(problem.heldOutEventTerm(x), 0.0);
+  PixelGridProblem::Terms all, kept;
+  problem.evaluate(x, nullptr, &all);
+  problem.holdOutEvents();
+  problem.evaluate(x, nullptr, &kept);
+  ASSERT_GT(all.event, kept.event);
+  EXPECT_EQ(all.blur, kept.blur);
+  // The event term is the mean over every pixel and view: the held-out part, spread over 80 pixels.
+  const double held = problem.heldOutEventTerm(x);
+  EXPECT_NEAR(held, (all.event - kept.event) * (24.0 * 18.0) / 80.0, 1e-9 * held);
+  EXPECT_GT(held, 0.0);
 }
 
 // The grid's solve adds its sums (the loss, the gradient, the L-BFGS recursion's dot products) in a
@@ -853,6 +880,27 @@ TEST(Benerf, PixelGridTakesOneViewPerPixelOfBlurUpToItsBoundOrTheViewsSetting) {
             std::ceil(blur_px) + 1);
   o.virtual_views = 12;
   EXPECT_EQ(BenerfDeblurrer(o).run(obs, request).parameters.at("virtual_views"), 12.0);
+}
+
+// The grid's smoothness chosen by held-out events (BenerfOptions::smooth): on the textured planes
+// (120 x 90, 15 px of blur, two L-BFGS steps) the default's held-out score is the lower and the
+// candidates stop at the first rise; a smoothness given is used as it is, with nothing held out.
+TEST(Benerf, PixelGridChoosesItsSmoothnessByHeldOutEvents) {
+  const Observation obs = presetObservation("planes", 15);
+  const DeblurRequest request{{obs.blurry.midExposure()}, {}};
+  BenerfOptions o = benerfBudget("fast");
+  o.iterations = 20;
+  const DeblurResult chosen = BenerfDeblurrer(o).run(obs, request);
+  const auto& p = chosen.parameters;
+  ASSERT_EQ(p.at("representation_pixels"), 1.0);
+  ASSERT_EQ(p.at("start_kept"), 0.0);
+  EXPECT_EQ(p.at("smoothness"), 0.01);
+  EXPECT_LT(p.at("held_out_events_0.01"), p.at("held_out_events_0.03"));
+  EXPECT_EQ(p.count("held_out_events_0.1"), 0u);
+  o.smooth = 0.05;
+  const DeblurResult fixed = BenerfDeblurrer(o).run(obs, request);
+  EXPECT_EQ(fixed.parameters.at("smoothness"), 0.05);
+  EXPECT_EQ(fixed.parameters.count("held_out_events_0.01"), 0u);
 }
 
 // The events see brightness only, so in colour nothing but the blur term holds the grid's chroma,

@@ -74,6 +74,15 @@ struct BenerfOptions {
   // one (unchanged) by 0.5-1.6 dB; 0.1 and above lost again where the scene has strong colour
   // edges (the astronaut's suit, the motorcycle).
   double chroma_smooth = 0.03;
+  // The pixel grid's smoothness of the log image (PixelGridOptions::smoothness). 0: chosen by the
+  // events it was not fitted to. Its solve is run with the events of a quarter of the pixels held
+  // out, at 0.01, 0.03 and 0.1 in turn while the held-out pixels' comparisons with mid-exposure
+  // fall, and the last of those is used. A pixel grid follows each pixel's own events, so where a
+  // smooth texture fires few of them the noise events become speckle in the image; on textured
+  // scenes more smoothing blurs the texture that the held-out events see. Measured at `fast`
+  // (BENCHMARKS.md, "The pixel grid"): every natural and standard scene kept 0.01; the noisy
+  // suite's ground_blur15_noisy chose 0.03 (41.24 -> 42.99 dB).
+  double smooth = 0;
   // Where no calibration is given (Observation::camera_assumed), the pixel grid's registration
   // estimates the lens's radial distortion (calibrateFromLatentFrames) and every later step uses
   // that camera; the summary says which camera was used (camera_given, camera_estimated,

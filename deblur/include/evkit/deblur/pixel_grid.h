@@ -98,6 +98,13 @@ class PixelGridProblem {
   Eigen::VectorXd motionGradient(const std::vector<double>& u, int stride = 1) const;
   const Trajectory& motion() const { return motion_; }
   void setMotion(const Trajectory& motion);  // the same exposure's
+  void setSmoothness(double smoothness) { options_.smoothness = smoothness; }
+  // Leaves the events of one 8 x 8 block of pixels in four out of the loss (evaluate, solve), so
+  // that heldOutEventTerm scores the image on events it was not fitted to.
+  void holdOutEvents();
+  // The mean penalty of the held-out pixels' comparisons with mid-exposure (the event term's
+  // first part, unweighted); 0 when none are held out.
+  double heldOutEventTerm(const std::vector<double>& u) const;
   // The image the camera sees at time t.
   cv::Mat render(const std::vector<double>& x, int64_t t_us) const;
 
@@ -135,8 +142,9 @@ class PixelGridProblem {
   double blur_px_ = 0, blur_weight_ = 1;
   int views_ = 0, margin_ = 0, canvas_w_ = 0, canvas_h_ = 0;
   std::vector<int64_t> times_us_;
-  std::vector<CanvasTaps> taps_;  // per view and pixel
-  std::vector<float> change_;     // per view and pixel: the events' log change since mid-exposure
+  std::vector<CanvasTaps> taps_;   // per view and pixel
+  std::vector<float> change_;      // per view and pixel: the events' log change since mid-exposure
+  std::vector<uint8_t> held_out_;  // per pixel, when some are held out (holdOutEvents)
   cv::Mat blurry_;
 };
 
