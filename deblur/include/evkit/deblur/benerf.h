@@ -80,9 +80,11 @@ struct BenerfOptions {
   // fall, and the last of those is used. A pixel grid follows each pixel's own events, so where a
   // smooth texture fires few of them the noise events become speckle in the image; on textured
   // scenes more smoothing blurs the texture that the held-out events see. Measured at `fast`
-  // (BENCHMARKS.md, "The pixel grid"): every natural and standard scene kept 0.01; the noisy
-  // suite's ground_blur15_noisy chose 0.03 (41.24 -> 42.99 dB).
-  double smooth = 0;
+  // (BENCHMARKS.md, "The pixel grid"): every natural and hard scene kept 0.01; noisy 35.08 -> 35.25
+  // dB (ground_blur15_noisy chose 0.03: 41.24 -> 42.99), standard 36.76 -> 36.79. Not the default:
+  // the short solves make a frame about 40% slower, which takes the natural suite's colour scenes
+  // without thresholds to 28-31 s at `fast`, over its 25 s.
+  double smooth = 0.01;
   // Where no calibration is given (Observation::camera_assumed), the pixel grid's registration
   // estimates the lens's radial distortion (calibrateFromLatentFrames) and every later step uses
   // that camera; the summary says which camera was used (camera_given, camera_estimated,
