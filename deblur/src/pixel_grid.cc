@@ -710,10 +710,11 @@ double PixelGridProblem::heldOutEventTerm(const std::vector<double>& u) const {
             V = views_;
   const size_t N = directions_.size();
   const LogMapping& log = options_.log;
-  double sum = 0;
-  int64_t count = 0;
-#pragma omp parallel for reduction(+ : sum, count) schedule(static)
-  for (int y = 0; y < H; ++y) {
+  // In a fixed order (orderedSum), so that a close choice between candidates is the same on every
+  // run.
+  const double sum = orderedSum(H, [&](std::ptrdiff_t row) {
+    const int y = static_cast<int>(row);
+    double row_sum = 0;
     for (int px = 0; px < W; ++px) {
       const size_t pixel = static_cast<size_t>(y) * W + px;
       if (!held_out_[pixel]) continue;
@@ -726,12 +727,13 @@ double PixelGridProblem::heldOutEventTerm(const std::vector<double>& u) const {
         const double r = log.logOf(std::max(0.0, nerf::greyOf(value, C))) - mid_log -
                          change_[static_cast<size_t>(k) * N + pixel];
         double weight;
-        sum += eventPenalty(r, &weight);
-        ++count;
+        row_sum += eventPenalty(r, &weight);
       }
     }
-  }
-  return count ? sum / static_cast<double>(count) : 0.0;
+    return row_sum;
+  });
+  const auto held = std::count(held_out_.begin(), held_out_.end(), uint8_t{1});
+  return held ? sum / (static_cast<double>(held) * V) : 0.0;
 }
 
 void PixelGridProblem::setMotion(const Trajectory& motion) {
