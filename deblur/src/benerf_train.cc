@@ -429,6 +429,14 @@ constexpr double kBetaContrast = 0.2;
 // measured on the natural, standard, noisy and hard suites (BENCHMARKS.md, "The pixel grid"), the
 // scenes where the solve ended below its start had 0.54-0.93, those where it gained 0.04-0.37.
 constexpr double kKeepStart = 0.5;
+// The blur (the grid's longest image path, px) from which a start the grid would keep is left to
+// the hash field instead. Below it the start is kept because the grid's bilinear cells cannot model
+// so short a blur, and EDI's frame is the better answer (hard_blur2: EDI 40.3 dB, the hash field
+// 31.2, the blurry frame 31.3). Above it the registered motion does not re-make the blurry frame
+// (the rgbd scenes: smooth texture registers a short motion, 11.3 px on rgbd_blur15, and their
+// height field ends at the mid frame's border), and the hash field, whose training refines its
+// own trajectory from the events, did better on 8 of 9 such scenes (BENCHMARKS.md, "A kept start").
+constexpr double kHashBlur = 5;
 
 // The smoothness candidates, in the order tried: PixelGridOptions' default first.
 constexpr std::array<double, 3> kSmoothness{0.01, 0.03, 0.1};
@@ -464,7 +472,8 @@ double chooseSmoothness(const PixelGridProblem& problem, const std::vector<doubl
 // declines (returns false, nothing rendered) where the c it finds is at an end of its range: there
 // the motion registered at a small c has collapsed with it (EDI's frames barely move, a short
 // motion and the blurry frame itself explain the blur), which happens on smooth or weakly textured
-// scenes, and the hash field with L2-normalised events, which need no c, does better.
+// scenes, and the hash field with L2-normalised events, which need no c, does better. It declines
+// too where it would keep its start (EDI's frame) at a blur of kHashBlur or more.
 bool runPixelGrid(const Observation& given, const DeblurRequest& request, const Start& s,
                   Clock::time_point start, DeblurResult& result) {
   const BenerfOptions& o = s.options;
@@ -558,6 +567,11 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   result.parameters["start_blur_misfit"] = at_start.misfit;
   result.parameters["start_change"] = at_start.change;
   result.parameters["start_kept"] = keep_start ? 1 : 0;
+  if (keep_start && problem.blurLength() >= kHashBlur) {
+    result.parameters["start_kept"] = 0;
+    result.parameters["start_to_hash"] = 1;
+    return false;
+  }
   if (!keep_start && !(o.smooth > 0)) {
     const auto choice_start = Clock::now();
     po.smoothness = chooseSmoothness(problem, x, steps, deadline, result);
