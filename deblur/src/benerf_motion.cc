@@ -233,6 +233,76 @@ struct RigidFit {
   double residual_px = 0;
 };
 
+// The inverse depths' common offset. Adding c to every inverse depth and refitting each time's
+// rotation and translation moves the image nearly alike for any c (a translation through the
+// offset is a rotation but for the perspective terms, x / f up to 0.55 at the border), and the
+// alternation of motions and depths leaves it near its start, where the translation takes part
+// of the rotation. The offsets that put the farthest tracks (5th percentile) at 0, 0.2, ..., 1 of
+// the nearest's inverse depth are each scored by the tracks' residual with the motions refitted
+// through them, and a parabola through the least and its neighbours refines it; the motions and
+// depths of the least residual are kept (the fitted ones where none is lower), at the scale again.
+void chooseDepthOffset(const PinholeCamera& camera, const std::vector<Track>& tracks, int times,
+                       int mid, double ridge, const DepthModel& model, RigidFit& f,
+                       Eigen::VectorXd& w) {
+  std::vector<double> sorted = f.rho;
+  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() * 5 / 100, sorted.end());
+  const double farthest = sorted[sorted.size() * 5 / 100];
+  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() * 95 / 100, sorted.end());
+  const double nearest = sorted[sorted.size() * 95 / 100];
+  if (!(nearest > farthest)) return;
+  const auto refit = [&](double c, RigidFit& trial) {
+    trial = f;
+    for (double& r : trial.rho) r = std::max(r + c, 0.0);
+#pragma omp parallel for schedule(dynamic)
+    for (int k = 0; k < times; ++k) {
+      if (k != mid)
+        fitTime(camera, tracks, trial.rho, k, true, ridge, trial.theta[static_cast<size_t>(k)],
+                trial.p[static_cast<size_t>(k)]);
+    }
+    return rmsResidual(camera, tracks, trial.rho, trial.theta, trial.p);
+  };
+  constexpr int kSteps = 5;
+  const double step = nearest / kSteps;
+  std::vector<double> residuals;
+  RigidFit trial, best_fit;
+  double best_residual = rmsResidual(camera, tracks, f.rho, f.theta, f.p), best = 0;
+  size_t least = 0;
+  for (int q = 0; q <= kSteps; ++q) {
+    const double c = q * step - farthest;
+    residuals.push_back(refit(c, trial));
+    if (residuals.back() < residuals[least]) least = residuals.size() - 1;
+    if (residuals.back() < best_residual) {
+      best_residual = residuals.back();
+      best = c;
+      best_fit = trial;
+    }
+  }
+  if (least > 0 && least + 1 < residuals.size()) {
+    const double a = residuals[least - 1], b = residuals[least], d = residuals[least + 1];
+    const double curvature = a - 2 * b + d;
+    if (curvature > 0) {
+      const double c =
+          static_cast<double>(least) * step - farthest + 0.5 * step * (a - d) / curvature;
+      const double residual = refit(c, trial);
+      if (residual < best_residual) {
+        best_residual = residual;
+        best = c;
+        best_fit = trial;
+      }
+    }
+  }
+  if (best == 0) return;
+  if (model.per_tile)
+    w.array() += best;
+  else
+    w[0] += best;
+  f = std::move(best_fit);
+  const double scale = (1 / 1.5) / (nearest + best);
+  w *= scale;
+  for (double& r : f.rho) r = std::clamp(r * scale, 0.0, 1 / 1.05);
+  for (Vector3& v : f.p) v /= scale;
+}
+
 // Rotation alone (no depth model) or rotation and translation through a depth model, alternating
 // the motions and the depths; the scale (not observable) fixed by putting the nearest tracks (95th
 // percentile of the inverse depth) at depth 1.5, the NDC near plane being at 1.
@@ -288,6 +358,7 @@ RigidFit fitRigid(const PinholeCamera& camera, const std::vector<Track>& tracks,
     for (double& r : f.rho) r = std::clamp(r * scale, 0.0, 1 / 1.05);
     for (Vector3& v : f.p) v /= scale;
   }
+  chooseDepthOffset(camera, tracks, times, mid, ridge, *model, f, w);
   f.w = w;
   for (int j = 0; j < model->size(); ++j) {
     if (support[static_cast<size_t>(j)] < 6) f.w[j] = std::nan("");  // not observed
