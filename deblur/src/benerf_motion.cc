@@ -233,6 +233,13 @@ struct RigidFit {
   double residual_px = 0;
 };
 
+// The value at `percent` of a copy of `values` (nth_element's order statistic).
+double percentileOf(std::vector<double> values, int percent) {
+  const auto at = values.begin() + static_cast<std::ptrdiff_t>(values.size() * percent / 100);
+  std::nth_element(values.begin(), at, values.end());
+  return *at;
+}
+
 // The inverse depths' common offset. Adding c to every inverse depth and refitting each time's
 // rotation and translation moves the image nearly alike for any c (a translation through the
 // offset is a rotation but for the perspective terms, x / f up to 0.55 at the border), and the
@@ -244,11 +251,7 @@ struct RigidFit {
 void chooseDepthOffset(const PinholeCamera& camera, const std::vector<Track>& tracks, int times,
                        int mid, double ridge, const DepthModel& model, RigidFit& f,
                        Eigen::VectorXd& w) {
-  std::vector<double> sorted = f.rho;
-  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() * 5 / 100, sorted.end());
-  const double farthest = sorted[sorted.size() * 5 / 100];
-  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() * 95 / 100, sorted.end());
-  const double nearest = sorted[sorted.size() * 95 / 100];
+  const double farthest = percentileOf(f.rho, 5), nearest = percentileOf(f.rho, 95);
   if (!(nearest > farthest)) return;
   const auto refit = [&](double c, RigidFit& trial) {
     trial = f;
@@ -266,16 +269,21 @@ void chooseDepthOffset(const PinholeCamera& camera, const std::vector<Track>& tr
   std::vector<double> residuals;
   RigidFit trial, best_fit;
   double best_residual = rmsResidual(camera, tracks, f.rho, f.theta, f.p), best = 0;
+  bool moved = false;
+  // Keeps the trial at offset c where its residual is the least so far.
+  const auto consider = [&](double c, double residual) {
+    if (!(residual < best_residual)) return;
+    best_residual = residual;
+    best = c;
+    best_fit = trial;
+    moved = true;
+  };
   size_t least = 0;
   for (int q = 0; q <= kSteps; ++q) {
     const double c = q * step - farthest;
     residuals.push_back(refit(c, trial));
     if (residuals.back() < residuals[least]) least = residuals.size() - 1;
-    if (residuals.back() < best_residual) {
-      best_residual = residuals.back();
-      best = c;
-      best_fit = trial;
-    }
+    consider(c, residuals.back());
   }
   if (least > 0 && least + 1 < residuals.size()) {
     const double a = residuals[least - 1], b = residuals[least], d = residuals[least + 1];
@@ -283,15 +291,10 @@ void chooseDepthOffset(const PinholeCamera& camera, const std::vector<Track>& tr
     if (curvature > 0) {
       const double c =
           static_cast<double>(least) * step - farthest + 0.5 * step * (a - d) / curvature;
-      const double residual = refit(c, trial);
-      if (residual < best_residual) {
-        best_residual = residual;
-        best = c;
-        best_fit = trial;
-      }
+      consider(c, refit(c, trial));
     }
   }
-  if (best == 0) return;
+  if (!moved) return;
   if (model.per_tile)
     w.array() += best;
   else
@@ -349,9 +352,7 @@ RigidFit fitRigid(const PinholeCamera& camera, const std::vector<Track>& tracks,
       f.rho[i] = 0;
       for (const auto& [j, v] : phi) f.rho[i] += v * w[j];
     }
-    std::vector<double> sorted = f.rho;
-    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() * 95 / 100, sorted.end());
-    const double nearest = sorted[sorted.size() * 95 / 100];
+    const double nearest = percentileOf(f.rho, 95);
     if (!(nearest > 0)) break;
     const double scale = (1 / 1.5) / nearest;
     w *= scale;

@@ -563,12 +563,12 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   // The start is kept where the grid's model misses the blurry frame by at least half of what
   // deblurring changes (kKeepStart): there the blur term would fit the model's own error.
   const StartFit at_start = startFit(problem, x, obs.blurry);
-  const bool keep_start = at_start.misfit >= kKeepStart * at_start.change;
+  const bool misfit = at_start.misfit >= kKeepStart * at_start.change;
+  const bool to_hash = misfit && problem.blurLength() >= kHashBlur, keep_start = misfit && !to_hash;
   result.parameters["start_blur_misfit"] = at_start.misfit;
   result.parameters["start_change"] = at_start.change;
   result.parameters["start_kept"] = keep_start ? 1 : 0;
-  if (keep_start && problem.blurLength() >= kHashBlur) {
-    result.parameters["start_kept"] = 0;
+  if (to_hash) {
     result.parameters["start_to_hash"] = 1;
     return false;
   }
