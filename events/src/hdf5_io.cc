@@ -126,16 +126,13 @@ class Hdf5Reader final : public EventReader {
   }
 
   void seek(int64_t t_begin) override {
+    // The millisecond index where it covers t_begin; past its end (a short or damaged index),
+    // binary search on the time column: log2(N) single-element reads.
+    const int64_t k = ms_to_idx_.empty() ? -1 : floorDiv(saturatingSub(t_begin, t_offset_), 1000);
     hsize_t index = 0;
-    if (!ms_to_idx_.empty()) {
-      const int64_t k = floorDiv(t_begin - t_offset_, 1000);
-      if (k >= static_cast<int64_t>(ms_to_idx_.size())) {
-        index = count_;
-      } else if (k > 0) {
-        index = std::min<hsize_t>(ms_to_idx_[static_cast<size_t>(k)], count_);
-      }
+    if (!ms_to_idx_.empty() && k < static_cast<int64_t>(ms_to_idx_.size())) {
+      if (k > 0) index = std::min<hsize_t>(ms_to_idx_[static_cast<size_t>(k)], count_);
     } else {
-      // Binary search on the time column: log2(N) single-element reads.
       hsize_t lo = 0, hi = count_;
       while (lo < hi) {
         const hsize_t mid = lo + (hi - lo) / 2;
@@ -209,7 +206,12 @@ class Hdf5Reader final : public EventReader {
         break;
       case Layout::kDsec:
         readRange(columns_[0].get(), H5T_NATIVE_INT64, begin, n, out, path_, names_[0]);
-        for (hsize_t i = 0; i < n; ++i) out[i] += t_offset_dsec_;
+        for (hsize_t i = 0; i < n; ++i) {
+          if (__builtin_add_overflow(out[i], t_offset_dsec_, &out[i])) {
+            throwInFile(path_, "event " + std::to_string(begin + i) +
+                                   ": time plus t_offset lies outside int64 microseconds");
+          }
+        }
         break;
       case Layout::kEventUtils: {
         seconds_.resize(n);
@@ -286,7 +288,7 @@ class Hdf5Reader final : public EventReader {
     if (count_ == 0) return;
     int64_t last_t = 0;
     readTimes(count_ - 1, 1, &last_t);
-    const int64_t span_ms = last_t >= t_offset_ ? (last_t - t_offset_) / 1000 : -1;
+    const int64_t span_ms = last_t >= t_offset_ ? saturatingSub(last_t, t_offset_) / 1000 : -1;
     if (span_ms < 0 || shape[0] > static_cast<hsize_t>(span_ms) + 1000) {  // a second of slack
       info_.warnings.push_back(path_ + ": " + name + " does not match the events' times; ignored");
       return;
@@ -338,8 +340,9 @@ class Hdf5Reader final : public EventReader {
         H5Handle attr(H5Aopen(ds.get(), "timestamp", H5P_DEFAULT));
         double ts = 0;
         H5Aread(attr.get(), H5T_NATIVE_DOUBLE, &ts);
-        if (!std::isfinite(ts))
-          throwInFile(path_, std::string("images/") + name + ": timestamp is not finite");
+        if (!std::isfinite(ts) || std::abs(ts) > 9e12)
+          throwInFile(
+              path_, std::string("images/") + name + ": timestamp is not a finite time in seconds");
         event_utils_images_.emplace_back(std::llround(ts * 1e6), std::string("images/") + name);
       }
       std::sort(event_utils_images_.begin(), event_utils_images_.end());

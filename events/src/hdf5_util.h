@@ -49,6 +49,12 @@ inline constexpr int64_t kMaxMsIndexEntries = 100'000'000;  // > 27 h of recordi
 inline int64_t floorDiv(int64_t a, int64_t b) {
   return a / b - ((a % b != 0) && ((a < 0) != (b < 0)));
 }
+// a - b, clamped to int64's range: a damaged file's times may sit anywhere in it.
+inline int64_t saturatingSub(int64_t a, int64_t b) {
+  int64_t d;
+  if (!__builtin_sub_overflow(a, b, &d)) return d;
+  return b < 0 ? INT64_MAX : INT64_MIN;
+}
 
 // Silences HDF5's own error-stack printing; evkit reports errors itself.
 void silenceHdf5Errors();

@@ -202,10 +202,16 @@ class Hdf5Writer final : public EventWriter {
       max_x_ = std::max<int>(max_x_, part.x[i]);
       max_y_ = std::max<int>(max_y_, part.y[i]);
       // ms_to_idx[k] = first index with t >= t_offset + 1000 k.
-      if (index == 0) t_offset_ = floorDiv(t, 1000) * 1000;
+      if (index == 0) {
+        // A first time within a millisecond of int64's floor has no millisecond origin: no index.
+        if (t < INT64_MIN + 1000)
+          index_valid_ = false;
+        else
+          t_offset_ = floorDiv(t, 1000) * 1000;
+      }
       if (index_valid_) {
-        const int64_t k_needed =
-            floorDiv(t - t_offset_, 1000);  // entries 0..k_needed point here or before
+        const int64_t k_needed = floorDiv(saturatingSub(t, t_offset_),
+                                          1000);  // entries 0..k_needed point here or before
         if (k_needed >= kMaxMsIndexEntries) {
           index_valid_ = false;
           ms_to_idx_.clear();
