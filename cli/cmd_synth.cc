@@ -43,6 +43,9 @@ int runSynth(const Args& args) {
       "drop-events", po::bool_switch(), "write no events (an exposure whose events were lost)")(
       "rotation-share", po::value<double>()->default_value(0.7),
       "share of the shake that is rotation (the rest translation), 0..1")(
+      "shake-knots", po::value<int>()->default_value(4),
+      "knots of the shake's cubic B-spline over the exposure (4: one smooth segment; each more "
+      "adds a turn)")(
       "share-of-image-motion", po::bool_switch(),
       "--rotation-share as a share of the image motion (the rotation alone moves the image by "
       "that share of --blur-px)")(
@@ -92,6 +95,8 @@ int runSynth(const Args& args) {
   o.shake.rotation_share = vm["rotation-share"].as<double>();
   o.preroll_us = vm["preroll-us"].as<int64_t>();
   o.shake.share_of_image_motion = vm["share-of-image-motion"].as<bool>();
+  o.shake.knots = vm["shake-knots"].as<int>();
+  if (o.shake.knots < 4 || o.shake.knots > 64) throw UsageError("--shake-knots must be in [4, 64]");
   if (!(o.shake.rotation_share >= 0 && o.shake.rotation_share <= 1) || o.preroll_us < 0)
     throw UsageError("--rotation-share must be in [0, 1] and --preroll-us not negative");
   if (!(o.shake.blur_px > 0) || o.exposure_us <= 0 || !(o.simulator.contrast_pos > 0) ||

@@ -310,7 +310,7 @@ void chooseDepthOffset(const PinholeCamera& camera, const std::vector<Track>& tr
 // the motions and the depths; the scale (not observable) fixed by putting the nearest tracks (95th
 // percentile of the inverse depth) at depth 1.5, the NDC near plane being at 1.
 RigidFit fitRigid(const PinholeCamera& camera, const std::vector<Track>& tracks, int times, int mid,
-                  const DepthModel* model, const RigidFit* start) {
+                  const DepthModel* model, const RigidFit* start, bool choose_offset) {
   RigidFit f;
   f.theta =
       start ? start->theta : std::vector<Vector3>(static_cast<size_t>(times), Vector3::Zero());
@@ -359,7 +359,7 @@ RigidFit fitRigid(const PinholeCamera& camera, const std::vector<Track>& tracks,
     for (double& r : f.rho) r = std::clamp(r * scale, 0.0, 1 / 1.05);
     for (Vector3& v : f.p) v /= scale;
   }
-  chooseDepthOffset(camera, tracks, times, mid, ridge, *model, f, w);
+  if (choose_offset) chooseDepthOffset(camera, tracks, times, mid, ridge, *model, f, w);
   f.w = w;
   for (int j = 0; j < model->size(); ++j) {
     if (support[static_cast<size_t>(j)] < 6) f.w[j] = std::nan("");  // not observed
@@ -605,7 +605,7 @@ TrackedPoints trackLatentFrames(const Observation& obs, const std::optional<Cont
 }
 
 // The rigid camera's three models fitted to the tracked points as `camera` sees them.
-ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points) {
+ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, bool choose_offset) {
   ExposureMotion m;
   std::vector<Track>& tracks = points.tracks;
   const int mid = kIntervals / 2, kTilesX = points.tiles_x, kTilesY = points.tiles_y;
@@ -616,10 +616,12 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points) {
   // Three models of rising richness: a rotation alone; a rotation and a translation seen through
   // one plane (a homography per time); the same through an inverse depth per tile.
   const int times = kIntervals + 1;
-  const RigidFit rotation = fitRigid(camera, tracks, times, mid, nullptr, nullptr);
+  const RigidFit rotation = fitRigid(camera, tracks, times, mid, nullptr, nullptr, false);
   const DepthModel plane_model{false, 0}, tile_model{true, kTilesX * kTilesY};
-  const RigidFit plane = fitRigid(camera, tracks, times, mid, &plane_model, &rotation);
-  const RigidFit tiles = fitRigid(camera, tracks, times, mid, &tile_model, &rotation);
+  const RigidFit plane =
+      fitRigid(camera, tracks, times, mid, &plane_model, &rotation, choose_offset);
+  const RigidFit tiles =
+      fitRigid(camera, tracks, times, mid, &tile_model, &rotation, choose_offset);
   m.residual_rotation_px = rotation.residual_px;
   m.residual_plane_px = plane.residual_px;
   m.residual_depth_px = tiles.residual_px;
@@ -696,9 +698,9 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points) {
 
 ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamera& camera,
                                       const std::optional<Contrast>& contrast,
-                                      const LogMapping& log) {
+                                      const LogMapping& log, bool choose_depth_offset) {
   TrackedPoints points = trackLatentFrames(obs, contrast, log);
-  return fitMotion(camera, points);
+  return fitMotion(camera, points, choose_depth_offset);
 }
 
 CalibratedMotion calibrateFromLatentFrames(const Observation& obs, const PinholeCamera& assumed,
@@ -707,7 +709,7 @@ CalibratedMotion calibrateFromLatentFrames(const Observation& obs, const Pinhole
   TrackedPoints points = trackLatentFrames(obs, contrast, log);
   CalibratedMotion best;
   best.camera = assumed;
-  best.motion = fitMotion(assumed, points);
+  best.motion = fitMotion(assumed, points, true);
   best.residual_assumed_px = best.motion.residual_depth_px;
   best.cameras_tried = 1;
   if (best.motion.tracks < 50) return best;
@@ -723,7 +725,7 @@ CalibratedMotion calibrateFromLatentFrames(const Observation& obs, const Pinhole
   double residual = best.motion.residual_depth_px;
   for (const double k1 : kLensK1) {
     if (k1 == 0) continue;
-    ExposureMotion m = fitMotion(camera(k1), points);
+    ExposureMotion m = fitMotion(camera(k1), points, true);
     ++best.cameras_tried;
     if (!(m.residual_depth_px < (1 - kLensGain) * residual)) continue;
     residual = m.residual_depth_px;

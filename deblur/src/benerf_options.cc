@@ -97,7 +97,9 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
                  "per pixel of it, up to max_views)")
         .integer("max_views", &O::max_views, {8},
                  "the pixel grid's most views when they follow the blur length (fast: 32, else 64)")
-        .integer("knots", &O::knots, {2}, "trajectory knots")
+        .integer("knots", &O::knots, {0},
+                 "trajectory knots (0: the pixel grid's from its registered motion, 4 to 7 by "
+                 "leave-one-out; the fields' 4)")
         .choice("trajectory", &O::trajectory,
                 {{"cubic", TrajectoryKind::kCubicSE3},
                  {"split", TrajectoryKind::kCubicSplit},

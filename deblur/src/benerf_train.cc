@@ -24,12 +24,12 @@
 namespace evkit {
 
 using benerf_detail::Checkpoint;
-using benerf_detail::ContrastAndMotion;
 using benerf_detail::contrastFromMotion;
 using benerf_detail::contrastFromSolves;
 using benerf_detail::ediMidFrame;
 using benerf_detail::readCheckpoint;
 using benerf_detail::secondsSince;
+using benerf_detail::SolvedContrast;
 using benerf_detail::StartFit;
 using benerf_detail::startFit;
 using benerf_detail::supportedEvents;
@@ -438,6 +438,15 @@ constexpr double kKeepStart = 0.5;
 // own trajectory from the events, did better on 8 of 9 such scenes (BENCHMARKS.md, "A kept start").
 constexpr double kHashBlur = 5;
 
+// The knot counts the grid's trajectory may take from its registered poses (9 of them: at most 7,
+// so that each count is still determined with one pose left out and another to spare), and how
+// much worse than the best count's the fewest knots may predict the poses left out. Measured in
+// image motion (BENCHMARKS.md, "A motion that turns"): on smooth shakes (every suite scene) more
+// knots predicted them at most 1.38 times better, fitting the registration's noise; on shakes that
+// turn twice within the exposure 2.7 to 9 times better.
+constexpr int kMinKnots = 4, kMaxKnots = 7;
+constexpr double kKnotTolerance = 1.5;
+
 // The smoothness candidates, in the order tried: PixelGridOptions' default first.
 constexpr std::array<double, 3> kSmoothness{0.01, 0.03, 0.1};
 
@@ -467,6 +476,36 @@ double chooseSmoothness(const PixelGridProblem& problem, const std::vector<doubl
   return chosen;
 }
 
+// The squared error (px^2) of a predicted camera pose against a registered one, as the image sees
+// it: the mean over a 5 x 4 grid of pixels, each at infinity and at the registration's nearest
+// depth (inverse depth 1 / 1.5), of the squared distance between where the two poses put it. In
+// pose space the registration's split between rotation and translation is noisy where the image
+// motion is not (a translation mimics a rotation).
+HeldOutError imageMotionError(const PinholeCamera& camera) {
+  std::vector<Vector3> bearings;
+  for (int j = 0; j < 4; ++j) {
+    for (int i = 0; i < 5; ++i) {
+      bearings.push_back(nerf::pixelDirection(camera, (i + 0.5) * camera.width / 5.0,
+                                              (j + 0.5) * camera.height / 4.0));
+    }
+  }
+  return [camera, bearings](const SE3& predicted, const SE3& pose) {
+    double sum = 0;
+    int count = 0;
+    for (const Vector3& b : bearings) {
+      for (const double rho : {0.0, 1 / 1.5}) {
+        // The point b / rho of the mid-exposure frame in each camera, scaled by rho.
+        const Vector3 in_a = predicted.rotation().conjugate() * (b - rho * predicted.translation());
+        const Vector3 in_b = pose.rotation().conjugate() * (b - rho * pose.translation());
+        if (in_a.z() <= 1e-6 || in_b.z() <= 1e-6) continue;
+        sum += (nerf::projectPoint(camera, in_a) - nerf::projectPoint(camera, in_b)).squaredNorm();
+        ++count;
+      }
+    }
+    return count ? sum / count : 0.0;
+  };
+}
+
 // The pixel-grid scene (pixel_grid.cc) on the registered motion (the caller runs it only where the
 // registration gave one), the image found from EDI's mid-exposure frame. Without thresholds it
 // declines (returns false, nothing rendered) where the c it finds is at an end of its range: there
@@ -480,9 +519,21 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   const PinholeCamera camera =
       given.camera.withSize(given.blurry.image.cols, given.blurry.image.rows);
   const int64_t t0 = given.blurry.exposure_start_us, t1 = given.blurry.exposure_end_us;
+  // The trajectory through the registered poses: `knots` where given, else the count that predicts
+  // each pose left out best (a motion that turns within the exposure needs more than one cubic
+  // segment: BENCHMARKS.md, "A motion that turns").
   const auto fit = [&](const std::vector<StampedPose>& poses) {
-    return fitTrajectory(o.trajectory, std::max(o.knots, Trajectory::minimumKnots(o.trajectory)),
-                         t0, t1, poses);
+    int knots = o.knots;
+    if (knots <= 0) {
+      const KnotChoice choice = knotsByLeaveOneOut(o.trajectory, kMinKnots, kMaxKnots, t0, t1,
+                                                   poses, imageMotionError(camera), kKnotTolerance);
+      knots = choice.knots;
+      for (size_t i = 0; i < choice.held_out_rms.size(); ++i)
+        result.parameters["knots_held_out_" + std::to_string(kMinKnots + i)] =
+            choice.held_out_rms[i];
+    }
+    result.parameters["knots"] = std::max(knots, Trajectory::minimumKnots(o.trajectory));
+    return fitTrajectory(o.trajectory, knots, t0, t1, poses);
   };
   ExposureMotion registered = s.motion;
   PixelGridOptions po;
@@ -513,14 +564,13 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     result.parameters["contrast_from_motion"] = c0;
     result.parameters["contrast_at_range_end"] = at_end ? 1 : 0;
     if (at_end) return false;
-    ContrastAndMotion found = contrastFromSolves(given, camera, fit, po, ratio, c0, o, result);
+    const SolvedContrast found = contrastFromSolves(given, camera, fit, po, ratio, c0, o, result);
     result.parameters["contrast_at_range_end"] = found.at_end ? 1 : 0;
     if (found.at_end) return false;
     contrast = found.contrast;
-    if (found.motion.poses.empty())
-      found.motion = motionFromLatentFrames(given, camera, contrast, o.log);
-    if (!found.motion.poses.empty()) {
-      registered = std::move(found.motion);
+    ExposureMotion at_found = motionFromLatentFrames(given, camera, contrast, o.log);
+    if (!at_found.poses.empty()) {
+      registered = std::move(at_found);
       reportMotion(registered, result);
     }
     result.parameters["contrast_estimated"] = contrast.on;

@@ -113,9 +113,10 @@ Contrast contrastFromMotion(const Observation& obs, const PinholeCamera& camera,
 // that the blur does not show, so the solved image re-blurs away from the frame. Each candidate
 // registers its own motion: on one motion registered at a c that is too low (where
 // contrastFromMotion's EDI frame is biased by a poor motion), the solves are biased low as well.
-// A walk in log c by steps of 2^(1/3) from c0 to the least, then a parabola through it and its
-// neighbours.
-ContrastAndMotion contrastFromSolves(
+// The candidates' registrations leave the depths' offset unchosen (only their image motion is
+// scored). A walk in log c by steps of 2^(1/3) from c0 to the least, then a parabola through it
+// and its neighbours.
+SolvedContrast contrastFromSolves(
     const Observation& given, const PinholeCamera& camera,
     const std::function<Trajectory(const std::vector<StampedPose>&)>& fit, PixelGridOptions po,
     double ratio, double c0, const BenerfOptions& o, DeblurResult& result) {
@@ -125,11 +126,11 @@ ContrastAndMotion contrastFromSolves(
   constexpr int kSteps = 10;
   po.max_views = std::max(po.min_views, kSearchViews);
   const int64_t t0 = given.blurry.exposure_start_us, t1 = given.blurry.exposure_end_us;
-  std::vector<std::pair<double, ExposureMotion>> candidates;  // log c and its registration
+  int solves = 0;
   const auto misfit = [&](double l) {
     const Contrast contrast{std::exp(l), std::exp(l) * ratio};
-    candidates.emplace_back(l, motionFromLatentFrames(given, camera, contrast, o.log));
-    const ExposureMotion& registered = candidates.back().second;
+    ++solves;
+    const ExposureMotion registered = motionFromLatentFrames(given, camera, contrast, o.log, false);
     if (registered.poses.empty()) return std::numeric_limits<double>::infinity();
     const Trajectory motion = fit(registered.poses);
     DeblurResult unused;
@@ -168,13 +169,10 @@ ContrastAndMotion contrastFromSolves(
       f[0] = l - h >= lo - 1e-9 ? misfit(l - h) : none;
     }
   }
-  ContrastAndMotion out;
+  SolvedContrast out;
   out.at_end = l < lo + 1e-9 || l > hi - 1e-9;
-  for (auto& [at, motion] : candidates) {
-    if (std::abs(at - l) < 1e-9) out.motion = std::move(motion);
-  }
   l += vertexShift(f[0], f[1], f[2], h);
-  result.parameters["contrast_solves"] = static_cast<double>(candidates.size());
+  result.parameters["contrast_solves"] = solves;
   out.contrast = {std::exp(l), std::exp(l) * ratio};
   return out;
 }

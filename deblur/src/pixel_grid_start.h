@@ -43,12 +43,11 @@ Contrast contrastFromMotion(const Observation& obs, const PinholeCamera& camera,
 
 // The thresholds refined from `c0` by short solves of the grid, each on the motion registered at
 // its own c: the c at which the solved image re-blurs closest to the frame.
-struct ContrastAndMotion {
+struct SolvedContrast {
   Contrast contrast;
-  ExposureMotion motion;  // registered at the candidate nearest to it (empty where that failed)
-  bool at_end = false;    // the least at an end of [0.05, 1]
+  bool at_end = false;  // the least at an end of [0.05, 1]
 };
-ContrastAndMotion contrastFromSolves(
+SolvedContrast contrastFromSolves(
     const Observation& given, const PinholeCamera& camera,
     const std::function<Trajectory(const std::vector<StampedPose>&)>& fit, PixelGridOptions po,
     double ratio, double c0, const BenerfOptions& o, DeblurResult& result);

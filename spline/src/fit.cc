@@ -4,6 +4,7 @@
 #include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numbers>
 #include <stdexcept>
 
@@ -102,6 +103,42 @@ Trajectory fitTrajectory(TrajectoryKind kind, int knots, int64_t t_begin_us, int
     report->final_rms = std::sqrt(cost / static_cast<double>(poses.size()));
   }
   return traj;
+}
+
+KnotChoice knotsByLeaveOneOut(TrajectoryKind kind, int min_knots, int max_knots, int64_t t_begin_us,
+                              int64_t t_end_us, const std::vector<StampedPose>& poses,
+                              const HeldOutError& error, double tolerance,
+                              const FitOptions& options) {
+  KnotChoice out;
+  min_knots = std::max(min_knots, Trajectory::minimumKnots(kind));
+  out.knots = min_knots;
+  // Each count must still be determined with one pose left out: as many poses as knots.
+  max_knots = std::min(max_knots, static_cast<int>(poses.size()) - 1);
+  if (poses.size() < 3 || max_knots <= min_knots) return out;
+  const auto weighted = [&](const SE3& predicted, const SE3& pose) {
+    Vector6 r = logSE3(predicted.inverse() * pose);
+    r.tail<3>() *= options.rotation_weight;
+    return r.squaredNorm();
+  };
+  for (int knots = min_knots; knots <= max_knots; ++knots) {
+    double sum = 0;
+    for (size_t left = 1; left + 1 < poses.size(); ++left) {
+      std::vector<StampedPose> rest = poses;
+      rest.erase(rest.begin() + static_cast<std::ptrdiff_t>(left));
+      const Trajectory fit = fitTrajectory(kind, knots, t_begin_us, t_end_us, rest, options);
+      const SE3 predicted = fit.poseAt(std::clamp(poses[left].t_us, t_begin_us, t_end_us));
+      sum += error ? error(predicted, poses[left].pose) : weighted(predicted, poses[left].pose);
+    }
+    out.held_out_rms.push_back(std::sqrt(sum / static_cast<double>(poses.size() - 2)));
+  }
+  const double least = *std::min_element(out.held_out_rms.begin(), out.held_out_rms.end());
+  for (size_t i = 0; i < out.held_out_rms.size(); ++i) {
+    if (out.held_out_rms[i] <= tolerance * least) {
+      out.knots = min_knots + static_cast<int>(i);
+      break;
+    }
+  }
+  return out;
 }
 
 Similarity alignPositions(const std::vector<Vector3>& est, const std::vector<Vector3>& truth,

@@ -100,7 +100,9 @@ struct BenerfOptions {
   double depth_scale = 0.02;
   nerf::MlpFieldConfig mlp;
   TrajectoryKind trajectory = TrajectoryKind::kCubicSE3;
-  int knots = 4;
+  // 0: the pixel grid takes the count from its registered motion (knotsByLeaveOneOut, 4 to 7), the
+  // fields 4.
+  int knots = 0;
   double knot_init = 0.01;  // knots start at exp(u), u uniform in [-knot_init, knot_init]^6
   // Where the trajectory starts. kIdentity: every knot near identity (the paper). kEvents: a
   // constant rotation over the exposure found from the events by contrast maximisation
@@ -244,15 +246,18 @@ Vector3 rotationFromEvents(const Observation& obs, const nerf::PinholeCamera& ca
 // 24 x 24 px. The scale is not observable: the nearest points (95th percentile of the inverse
 // depth) are put at depth 1.5, the NDC near plane being at 1. The representation chosen is the
 // plane unless the parallax is observed in the data: the tiles' depths move the image off the best
-// plane's motion by more than 1 px over the exposure (95th percentile of the tracks) and take away
-// at least 15% of the plane's residual. Where the depths are chosen, each pixel then takes its own
-// inverse depth from its dense flows (Gauss-Newton on the flows at the 8 other times, from the
-// tiles' value, then a 5 x 5 median), and each time's motion is fitted again through them, twice;
-// the tiles' depths blur a near layer into its surround over a tile and more (a rocket at 2 m
-// before a backdrop at 10 m: 1.3-1.8 px of image motion error on the rocket, per pixel 0.8-1.2).
-// That refinement is kept where it lowers the tracks' residual (pixel_depth). Where the chosen
-// model's RMS residual is above 1 px (the rigid camera does not explain the registration), or
-// fewer than 50 points are tracked, there are no poses.
+// plane's motion by more than half a pixel over the exposure (95th percentile of the tracks) and
+// take away at least 15% of the plane's residual. The depths' common offset (nearly flat for the
+// flows, and where it sits the translation takes part of the rotation) is chosen by the tracks'
+// residual over offsets that put the farthest tracks at 0 to 1 of the nearest's inverse depth.
+// Where the depths are chosen, each pixel then takes its own inverse depth from its dense flows
+// (Gauss-Newton on the flows at the 8 other times, from the tiles' value, then a 5 x 5 median), and
+// each time's motion is fitted again through them, twice; the tiles' depths blur a near layer into
+// its surround over a tile and more (a rocket at 2 m before a backdrop at 10 m: 1.3-1.8 px of image
+// motion error on the rocket, per pixel 0.8-1.2). That refinement is kept where it lowers the
+// tracks' residual (pixel_depth). Where the chosen model's RMS residual is above 1 px (the rigid
+// camera does not explain the registration), or fewer than 50 points are tracked, there are no
+// poses.
 struct ExposureMotion {
   std::vector<StampedPose> poses;  // T_mid_t: the camera at each time in the mid-exposure frame
   bool depth = false;              // the depth model chosen (else the plane)
@@ -266,9 +271,12 @@ struct ExposureMotion {
   // frame (float32); empty without poses.
   cv::Mat inverse_depth;
 };
+// choose_depth_offset false: the depths' common offset is left where the alternation of motions and
+// depths put it (the image motion nearly alike, the split between rotation and translation less
+// right; about 0.5 s less), for registrations that are only scored.
 ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamera& camera,
                                       const std::optional<Contrast>& contrast,
-                                      const LogMapping& log = {});
+                                      const LogMapping& log = {}, bool choose_depth_offset = true);
 
 // The camera where no calibration was given: the radial distortion k1 (OpenCV's model, k2 = p1 =
 // p2 = 0) that lets the rigid camera explain the points tracked between EDI's latent frames best
