@@ -439,13 +439,8 @@ constexpr double kKeepStart = 0.5;
 constexpr double kHashBlur = 5;
 
 // The knot counts the grid's trajectory may take from its registered poses (9 of them: at most 7,
-// so that each count is still determined with one pose left out and another to spare), and how
-// much worse than the best count's the fewest knots may predict the poses left out. Measured in
-// image motion (BENCHMARKS.md, "A motion that turns"): on smooth shakes (every suite scene) more
-// knots predicted them at most 1.38 times better, fitting the registration's noise; on shakes that
-// turn twice within the exposure 2.7 to 9 times better.
+// so that each count is still determined with one pose left out and another to spare).
 constexpr int kMinKnots = 4, kMaxKnots = 7;
-constexpr double kKnotTolerance = 1.5;
 
 // The smoothness candidates, in the order tried: PixelGridOptions' default first.
 constexpr std::array<double, 3> kSmoothness{0.01, 0.03, 0.1};
@@ -526,7 +521,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     int knots = o.knots;
     if (knots <= 0) {
       const KnotChoice choice = knotsByLeaveOneOut(o.trajectory, kMinKnots, kMaxKnots, t0, t1,
-                                                   poses, imageMotionError(camera), kKnotTolerance);
+                                                   poses, imageMotionError(camera));
       knots = choice.knots;
       for (size_t i = 0; i < choice.held_out_rms.size(); ++i)
         result.parameters["knots_held_out_" + std::to_string(kMinKnots + i)] =

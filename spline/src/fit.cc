@@ -107,8 +107,7 @@ Trajectory fitTrajectory(TrajectoryKind kind, int knots, int64_t t_begin_us, int
 
 KnotChoice knotsByLeaveOneOut(TrajectoryKind kind, int min_knots, int max_knots, int64_t t_begin_us,
                               int64_t t_end_us, const std::vector<StampedPose>& poses,
-                              const HeldOutError& error, double tolerance,
-                              const FitOptions& options) {
+                              const HeldOutError& error, const FitOptions& options) {
   KnotChoice out;
   min_knots = std::max(min_knots, Trajectory::minimumKnots(kind));
   out.knots = min_knots;
@@ -120,20 +119,33 @@ KnotChoice knotsByLeaveOneOut(TrajectoryKind kind, int min_knots, int max_knots,
     r.tail<3>() *= options.rotation_weight;
     return r.squaredNorm();
   };
+  // Per count, the mean of the folds' squared errors and its standard error.
+  std::vector<double> means, standard_errors;
   for (int knots = min_knots; knots <= max_knots; ++knots) {
-    double sum = 0;
+    std::vector<double> folds;
     for (size_t left = 1; left + 1 < poses.size(); ++left) {
       std::vector<StampedPose> rest = poses;
       rest.erase(rest.begin() + static_cast<std::ptrdiff_t>(left));
       const Trajectory fit = fitTrajectory(kind, knots, t_begin_us, t_end_us, rest, options);
       const SE3 predicted = fit.poseAt(std::clamp(poses[left].t_us, t_begin_us, t_end_us));
-      sum += error ? error(predicted, poses[left].pose) : weighted(predicted, poses[left].pose);
+      folds.push_back(error ? error(predicted, poses[left].pose)
+                            : weighted(predicted, poses[left].pose));
     }
-    out.held_out_rms.push_back(std::sqrt(sum / static_cast<double>(poses.size() - 2)));
+    const double n = static_cast<double>(folds.size());
+    double mean = 0, spread = 0;
+    for (const double e : folds) mean += e / n;
+    for (const double e : folds) spread += (e - mean) * (e - mean) / (n - 1);
+    means.push_back(mean);
+    standard_errors.push_back(std::sqrt(spread / n));
+    out.held_out_rms.push_back(std::sqrt(mean));
   }
-  const double least = *std::min_element(out.held_out_rms.begin(), out.held_out_rms.end());
-  for (size_t i = 0; i < out.held_out_rms.size(); ++i) {
-    if (out.held_out_rms[i] <= tolerance * least) {
+  // The one-standard-error rule (Hastie, Tibshirani, Friedman, "The Elements of Statistical
+  // Learning", 2nd ed., 2009, section 7.10): the fewest knots whose mean error is within one
+  // standard error of the least.
+  const size_t least =
+      static_cast<size_t>(std::min_element(means.begin(), means.end()) - means.begin());
+  for (size_t i = 0; i < means.size(); ++i) {
+    if (means[i] <= means[least] + standard_errors[least]) {
       out.knots = min_knots + static_cast<int>(i);
       break;
     }

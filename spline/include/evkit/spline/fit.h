@@ -38,12 +38,11 @@ Trajectory fitTrajectory(TrajectoryKind kind, int knots, int64_t t_begin_us, int
 
 // The knot count in [min_knots, max_knots] whose fit predicts the poses where they are not fitted:
 // leave-one-out cross-validation over the interior poses (each left out in turn, the trajectory
-// fitted to the rest and compared with it there), the fewest knots whose held-out RMS error is
-// within `tolerance` times the least. A motion that turns within the interval needs more knots
-// than one cubic segment, and they predict it several times better; where it does not turn, more
-// knots fit the poses' noise and gain little or lose. `error`: the squared error of a prediction
-// against the pose left out (none: the weighted log residual of the fit). Counts above poses - 1
-// are not tried.
+// fitted to the rest and compared with it there), the fewest knots whose mean error is within one
+// standard error (over the poses left out) of the least: the one-standard-error rule. A motion
+// that turns within the interval needs more knots than one cubic segment; where it does not, more
+// knots fit the poses' noise. `error`: the squared error of a prediction against the pose left out
+// (none: the weighted log residual of the fit). Counts above poses - 1 are not tried.
 using HeldOutError = std::function<double(const SE3& predicted, const SE3& pose)>;
 struct KnotChoice {
   int knots = 0;
@@ -51,8 +50,7 @@ struct KnotChoice {
 };
 KnotChoice knotsByLeaveOneOut(TrajectoryKind kind, int min_knots, int max_knots, int64_t t_begin_us,
                               int64_t t_end_us, const std::vector<StampedPose>& poses,
-                              const HeldOutError& error = {}, double tolerance = 1.5,
-                              const FitOptions& options = {});
+                              const HeldOutError& error = {}, const FitOptions& options = {});
 
 enum class Alignment { kNone, kSE3, kSim3 };
 
