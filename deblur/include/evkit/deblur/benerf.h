@@ -3,8 +3,9 @@
 // from the blurry frame and the events of that exposure alone.
 //
 // Model (DESIGN.md §5):
-//  - trajectory: a spline over the exposure (cumulative cubic SE(3), 4 knots, knots initialised
-//    within knot_init of identity; split or linear selectable), poses T_world_cam in double;
+//  - trajectory: a spline over the exposure (cumulative cubic SE(3), 4 knots in the paper, knots
+//    initialised within knot_init of identity; split or linear selectable; the pixel grid takes
+//    4 to 7 from its registered motion), poses T_world_cam in double;
 //  - blur term: a blurry pixel is the mean of n virtual sharp renders at poses spread over the
 //    exposure (midpoints s_k = (k + 1/2) / n: the midpoint rule of the exposure integral);
 //    L_p = mean over pixels and channels of (mean_k C_k - B)^2;
