@@ -514,9 +514,10 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   const PinholeCamera camera =
       given.camera.withSize(given.blurry.image.cols, given.blurry.image.rows);
   const int64_t t0 = given.blurry.exposure_start_us, t1 = given.blurry.exposure_end_us;
-  // The trajectory through the registered poses: `knots` where given, else the count that predicts
-  // each pose left out best (a motion that turns within the exposure needs more than one cubic
-  // segment: BENCHMARKS.md, "A motion that turns").
+  // The trajectory through the registered poses: `knots` where given, else the fewest that predict
+  // each pose left out about as well as the best count (within one standard error): a motion that
+  // turns within the exposure needs more than one cubic segment (BENCHMARKS.md, "A motion that
+  // turns").
   const auto fit = [&](const std::vector<StampedPose>& poses) {
     int knots = o.knots;
     if (knots <= 0) {
@@ -542,7 +543,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   po.max_views = std::max(po.min_views, o.max_views);
   if (o.virtual_views > 0) po.min_views = po.max_views = o.virtual_views;
   // Without thresholds: the scale that the registered motion explains best, refined by short
-  // solves of the grid, and the motion registered between EDI's frames at the nearest candidate.
+  // solves of the grid, and the motion registered between EDI's frames again at the c found.
   Contrast contrast;
   if (s.contrast_given) {
     contrast = *o.contrast;
