@@ -210,8 +210,8 @@ class Hdf5Writer final : public EventWriter {
           t_offset_ = floorDiv(t, 1000) * 1000;
       }
       if (index_valid_) {
-        const int64_t k_needed = floorDiv(saturatingSub(t, t_offset_),
-                                          1000);  // entries 0..k_needed point here or before
+        // Entries 0..k_needed point here or before.
+        const int64_t k_needed = floorDiv(saturatingSub(t, t_offset_), 1000);
         if (k_needed >= kMaxMsIndexEntries) {
           index_valid_ = false;
           ms_to_idx_.clear();

@@ -4,7 +4,6 @@
 #include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
-#include <limits>
 #include <numbers>
 #include <stdexcept>
 
@@ -114,11 +113,6 @@ KnotChoice knotsByLeaveOneOut(TrajectoryKind kind, int min_knots, int max_knots,
   // Each count must still be determined with one pose left out: as many poses as knots.
   max_knots = std::min(max_knots, static_cast<int>(poses.size()) - 1);
   if (poses.size() < 3 || max_knots <= min_knots) return out;
-  const auto weighted = [&](const SE3& predicted, const SE3& pose) {
-    Vector6 r = logSE3(predicted.inverse() * pose);
-    r.tail<3>() *= options.rotation_weight;
-    return r.squaredNorm();
-  };
   // Per count, the mean of the folds' squared errors and its standard error.
   std::vector<double> means, standard_errors;
   for (int knots = min_knots; knots <= max_knots; ++knots) {
@@ -129,7 +123,7 @@ KnotChoice knotsByLeaveOneOut(TrajectoryKind kind, int min_knots, int max_knots,
       const Trajectory fit = fitTrajectory(kind, knots, t_begin_us, t_end_us, rest, options);
       const SE3 predicted = fit.poseAt(std::clamp(poses[left].t_us, t_begin_us, t_end_us));
       folds.push_back(error ? error(predicted, poses[left].pose)
-                            : weighted(predicted, poses[left].pose));
+                            : weightedCost(fit, {poses[left]}, options.rotation_weight));
     }
     const double n = static_cast<double>(folds.size());
     double mean = 0, spread = 0;
