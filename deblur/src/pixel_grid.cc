@@ -448,7 +448,8 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
 
 int PixelGridProblem::solve(std::vector<double>& x, int iterations, Terms* terms,
                             std::chrono::steady_clock::time_point deadline,
-                            const std::function<void(int, double)>& progress) const {
+                            const std::function<void(int, double)>& progress,
+                            double converged) const {
   // L-BFGS (Nocedal and Wright, Numerical Optimization, algorithm 7.4) with a backtracking line
   // search on the Armijo condition. With a million cells the two-loop recursion is bound by memory
   // traffic, not arithmetic: the history is kept in float (it only shapes the direction), in a ring
@@ -462,6 +463,7 @@ int PixelGridProblem::solve(std::vector<double>& x, int iterations, Terms* terms
   const auto slot = [&](int age) { return (newest - age + kMemory) % kMemory; };  // age 0: newest
   std::vector<double> g, g_new, q(x.size()), x_new(x.size());
   double f = evaluate(x, &g);
+  std::vector<double> losses{f};  // after each step, the start's first
   int done = 0;
   for (; done < iterations && std::chrono::steady_clock::now() < deadline; ++done) {
     // First loop, newest pair to oldest: alpha_i = rho_i s_i.q, q -= alpha_i y_i (q starts as g).
@@ -558,7 +560,15 @@ int PixelGridProblem::solve(std::vector<double>& x, int iterations, Terms* terms
     x.swap(x_new);
     g.swap(g_new);
     f = f_new;
+    losses.push_back(f);
     if (progress) progress(done + 1, f);
+    if (converged > 0 && done + 1 >= kConvergedSteps) {
+      const double before = losses[losses.size() - 1 - kConvergedSteps];
+      if (before - f < converged * std::abs(before)) {
+        ++done;
+        break;
+      }
+    }
     if (sy > 1e-300) {
       newest = target;
       rho[newest] = 1 / sy;

@@ -684,6 +684,33 @@ TEST(PixelGrid, SameImageOnEveryRunAtTheSameThreadCount) {
   EXPECT_EQ(runs[0], runs[1]);
 }
 
+// With `converged`, the solve stops at the first step where the loss fell by less than that
+// fraction of itself over the last 10 steps (the start counting as step 0); without it, it takes
+// every step it is given.
+TEST(PixelGrid, TheSolveStopsWhereItsLossNoLongerFalls) {
+  const GridScene scene = gridScene(false);
+  const PixelGridProblem problem(scene.obs, scene.camera, scene.motion, cv::Mat(),
+                                 Contrast{0.2, 0.25}, PixelGridOptions{});
+  const int kSteps = 150, k = PixelGridProblem::kConvergedSteps;
+  const double converged = 1e-3;
+  std::vector<double> x = problem.start(scene.obs.blurry.image);
+  std::vector<double> losses{problem.evaluate(x, nullptr)};
+  const int done = problem.solve(x, kSteps, nullptr, std::chrono::steady_clock::time_point::max(),
+                                 [&](int, double loss) { losses.push_back(loss); }, converged);
+  ASSERT_EQ(losses.size(), static_cast<size_t>(done) + 1);
+  ASSERT_GT(done, k);
+  ASSERT_LT(done, kSteps);
+  const auto fell = [&](int step) {
+    return losses[static_cast<size_t>(step - k)] - losses[static_cast<size_t>(step)];
+  };
+  EXPECT_LT(fell(done), converged * losses[static_cast<size_t>(done - k)]);
+  for (int step = k; step < done; ++step)
+    EXPECT_GE(fell(step), converged * losses[static_cast<size_t>(step - k)]) << "step " << step;
+
+  std::vector<double> every = problem.start(scene.obs.blurry.image);
+  EXPECT_EQ(problem.solve(every, done + 5), done + 5);
+}
+
 }  // namespace
 }  // namespace evkit
 

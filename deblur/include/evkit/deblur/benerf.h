@@ -104,6 +104,12 @@ struct BenerfOptions {
   // 0: the pixel grid takes the count from its registered motion (knotsByLeaveOneOut, 4 to 7), the
   // fields 4.
   int knots = 0;
+  // The pixel grid's L-BFGS stops once its loss fell by less than this fraction of itself over the
+  // last 10 steps (0: every step of the budget). `fast` 3e-3, `balanced` 1e-3, `quality` 0. On the
+  // natural suite at `fast`'s 100 steps, 1e-3 stopped after 63 on average (no scene moving by more
+  // than 0.03 dB), 3e-3 after 45 (at most 0.06 dB; 11.0 -> 6.3 s a frame; BENCHMARKS.md, "When the
+  // grid has converged").
+  double converged = 1e-3;
   double knot_init = 0.01;  // knots start at exp(u), u uniform in [-knot_init, knot_init]^6
   // Where the trajectory starts. kIdentity: every knot near identity (the paper). kEvents: a
   // constant rotation over the exposure found from the events by contrast maximisation

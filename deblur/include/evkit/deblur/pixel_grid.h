@@ -84,12 +84,14 @@ class PixelGridProblem {
   // The loss (weighted blur term + weighted event term) and, optionally, its gradient.
   double evaluate(const std::vector<double>& x, std::vector<double>* gradient,
                   Terms* terms = nullptr) const;
-  // L-BFGS from x until `iterations` or the deadline (or until no step lowers the loss); returns
-  // the iterations done. progress(iteration, loss) after each.
+  // L-BFGS from x until `iterations` or the deadline (or until no step lowers the loss, or the
+  // loss fell by less than the fraction `converged` of itself over the last kConvergedSteps steps);
+  // returns the iterations done. progress(iteration, loss) after each.
+  static constexpr int kConvergedSteps = 10;
   int solve(
       std::vector<double>& x, int iterations, Terms* terms = nullptr,
       std::chrono::steady_clock::time_point deadline = std::chrono::steady_clock::time_point::max(),
-      const std::function<void(int, double)>& progress = {}) const;
+      const std::function<void(int, double)>& progress = {}, double converged = 0) const;
   // Levenberg-Marquardt steps on the motion with the image u fixed (the event term's residuals;
   // a step is taken when the whole loss falls); returns the loss.
   double refineMotion(const std::vector<double>& u, int iterations);
