@@ -695,8 +695,9 @@ TEST(PixelGrid, TheSolveStopsWhereItsLossNoLongerFalls) {
   const double converged = 1e-3;
   std::vector<double> x = problem.start(scene.obs.blurry.image);
   std::vector<double> losses{problem.evaluate(x, nullptr)};
-  const int done = problem.solve(x, kSteps, nullptr, std::chrono::steady_clock::time_point::max(),
-                                 [&](int, double loss) { losses.push_back(loss); }, converged);
+  const int done = problem.solve(
+      x, kSteps, nullptr, std::chrono::steady_clock::time_point::max(),
+      [&](int, double loss) { losses.push_back(loss); }, converged);
   ASSERT_EQ(losses.size(), static_cast<size_t>(done) + 1);
   ASSERT_GT(done, k);
   ASSERT_LT(done, kSteps);

@@ -48,6 +48,14 @@ TEST(Settings, OneBudgetGrammar) {
   EXPECT_DOUBLE_EQ(benerfOptions({{"budget", "1.5s"}}).budget_seconds, 1.5);
   EXPECT_EQ(benerfOptions({{"budget", "fast"}, {"iterations", "7"}}).iterations,
             7);  // keys over the budget
+  // The pixel grid's stop where its loss no longer falls: looser at `fast`, none at `quality`, the
+  // C++ defaults `balanced`'s.
+  EXPECT_DOUBLE_EQ(benerfBudget("fast").converged, 3e-3);
+  EXPECT_DOUBLE_EQ(benerfBudget("balanced").converged, 1e-3);
+  EXPECT_DOUBLE_EQ(BenerfOptions{}.converged, benerfBudget("balanced").converged);
+  EXPECT_DOUBLE_EQ(benerfBudget("quality").converged, 0);
+  EXPECT_DOUBLE_EQ(benerfOptions({{"budget", "fast"}, {"converged", "0"}}).converged, 0);
+  EXPECT_THROW(benerfOptions({{"converged", "-0.1"}}), Error);
 }
 
 TEST(Settings, CheckRefusesWhatParsingRefuses) {
