@@ -73,6 +73,13 @@ Eigen::Vector2d predict(const PinholeCamera& camera, const Vector3& bearing, dou
 
 constexpr double kHuberPx = 1.0;
 
+// The nearest a fitted depth model may put a point, as an inverse depth in the registration's
+// units (where the nearest tracks, the 95th percentile, are at depth 1.5): depth 0.1. A near object
+// that few tracks see lies beyond that percentile: bounded at 1 / 1.05, the cup of rocket_layers
+// (1.1 m, before gravel at 8 m, under 5% of the tracks) was held at a fraction of its parallax and
+// the plane chosen (BENCHMARKS.md, "A near object that few tracks see").
+constexpr double kNearestInverseDepth = 10;
+
 double huberWeight(double r) { return r <= kHuberPx ? 1.0 : kHuberPx / r; }
 
 // fitTime's ridge on the translation, over all the tracks.
@@ -302,7 +309,7 @@ void chooseDepthOffset(const PinholeCamera& camera, const std::vector<Track>& tr
   f = std::move(best_fit);
   const double scale = (1 / 1.5) / (nearest + best);
   w *= scale;
-  for (double& r : f.rho) r = std::clamp(r * scale, 0.0, 1 / 1.05);
+  for (double& r : f.rho) r = std::clamp(r * scale, 0.0, kNearestInverseDepth);
   for (Vector3& v : f.p) v /= scale;
 }
 
@@ -356,7 +363,7 @@ RigidFit fitRigid(const PinholeCamera& camera, const std::vector<Track>& tracks,
     if (!(nearest > 0)) break;
     const double scale = (1 / 1.5) / nearest;
     w *= scale;
-    for (double& r : f.rho) r = std::clamp(r * scale, 0.0, 1 / 1.05);
+    for (double& r : f.rho) r = std::clamp(r * scale, 0.0, kNearestInverseDepth);
     for (Vector3& v : f.p) v /= scale;
   }
   if (choose_offset) chooseDepthOffset(camera, tracks, times, mid, ridge, *model, f, w);
@@ -428,7 +435,7 @@ cv::Mat inverseDepthMap(const PinholeCamera& camera, const DepthModel& model, co
     }
   }
   cv::max(rho, 0.0, rho);
-  cv::min(rho, 1 / 1.05, rho);
+  cv::min(rho, kNearestInverseDepth, rho);
   return rho;
 }
 
@@ -451,6 +458,13 @@ cv::Mat pixelInverseDepth(const PinholeCamera& camera, const std::vector<cv::Mat
                           const cv::Mat& prior, double variance) {
   const int W = camera.width, H = camera.height, times = static_cast<int>(theta.size());
   const std::vector<Matrix3> Rt = transposedRotations(theta);
+  // A pixel's own inverse depth at most the prior's largest (or 1 / 1.05, the nearest tracks' scale
+  // with a margin): one beyond the nearest the tracks saw is no surface's (see at_bound below);
+  // unbounded, such pixels along text_coins_blur60's occluding edges lengthened the blur found
+  // from 58 to 90 px (the truth 60).
+  double upper = 0;
+  cv::minMaxLoc(prior, nullptr, &upper);
+  upper = std::max(upper, 1 / 1.05);
   cv::Mat rho(H, W, CV_32F);
 #pragma omp parallel for schedule(static)
   for (int y = 0; y < H; ++y) {
@@ -482,13 +496,13 @@ cv::Mat pixelInverseDepth(const PinholeCamera& camera, const std::vector<cv::Mat
       for (int iteration = 0; iteration < 4; ++iteration) {
         double h = 1.0, g = r - r0;
         cost(r, &h, &g);
-        r = std::clamp(r - g / h, 0.0, 1 / 1.05);
+        r = std::clamp(r - g / h, 0.0, upper);
       }
       // The pixel's own depth where its flows tell it: it takes away more than kDepthTest times the
       // tracks' residual variance from the prior's cost (a likelihood-ratio test on one unknown).
       // An estimate at a bound of the range is no minimum of the cost: the flows there follow
       // something other than the pixel (an occluding edge's, a failed flow).
-      const bool at_bound = r <= 0 || r >= 1 / 1.05;
+      const bool at_bound = r <= 0 || r >= upper;
       if (at_bound ||
           !(cost(r0, nullptr, nullptr) - cost(r, nullptr, nullptr) > kDepthTest * variance))
         r = r0;
