@@ -73,12 +73,10 @@ Eigen::Vector2d predict(const PinholeCamera& camera, const Vector3& bearing, dou
 
 constexpr double kHuberPx = 1.0;
 
-// The nearest a fitted depth model may put a point, as an inverse depth in the registration's
-// units (where the nearest tracks, the 95th percentile, are at depth 1.5): depth 0.1. A near object
-// that few tracks see lies beyond that percentile: bounded at 1 / 1.05, the cup of rocket_layers
-// (1.1 m, before gravel at 8 m, under 5% of the tracks) was held at a fraction of its parallax and
-// the plane chosen (BENCHMARKS.md, "A near object that few tracks see").
-constexpr double kNearestInverseDepth = 10;
+// The nearest a fitted depth may put a point, as an inverse depth in the registration's units
+// (where the nearest tracks, the 95th percentile, are at depth 1.5): 1 / 1.05, or depth 0.1 in a
+// tile whose tracks were seen at kSeenEverywhere of the times or more (tileNearest).
+constexpr double kNearestScale = 1 / 1.05, kNearestSeen = 10, kSeenEverywhere = 0.9;
 
 double huberWeight(double r) { return r <= kHuberPx ? 1.0 : kHuberPx / r; }
 
@@ -235,8 +233,10 @@ double rmsResidual(const PinholeCamera& camera, const std::vector<Track>& tracks
 // One motion model fitted: a rotation and a translation per time and each track's inverse depth.
 struct RigidFit {
   std::vector<Vector3> theta, p;
-  std::vector<double> rho;  // per track
-  Eigen::VectorXd w;        // the depth model's weights (empty for a rotation alone)
+  std::vector<double> rho;           // per track
+  std::vector<double> nearest;       // per track: the largest inverse depth it may take
+  std::vector<double> tile_nearest;  // per tile, under the tiles' model (tileNearest)
+  Eigen::VectorXd w;                 // the depth model's weights (empty for a rotation alone)
   double residual_px = 0;
 };
 
@@ -309,8 +309,31 @@ void chooseDepthOffset(const PinholeCamera& camera, const std::vector<Track>& tr
   f = std::move(best_fit);
   const double scale = (1 / 1.5) / (nearest + best);
   w *= scale;
-  for (double& r : f.rho) r = std::clamp(r * scale, 0.0, kNearestInverseDepth);
+  for (size_t i = 0; i < f.rho.size(); ++i)
+    f.rho[i] = std::clamp(f.rho[i] * scale, 0.0, f.nearest[i]);
   for (Vector3& v : f.p) v /= scale;
+}
+
+// The nearest inverse depth each tile may take. A near object that few tracks see lies beyond the
+// scale's 95th percentile: bounded there (kNearestScale), rocket_layers' cup (1.1 m before gravel
+// at 8 m, under 5% of the tracks) was held at a fraction of its parallax and the plane chosen
+// (BENCHMARKS.md, "A near object that few tracks see"). A tile takes a nearer depth where its
+// tracks were seen over the whole exposure (kSeenEverywhere of the times): along the image's
+// border the flows leave the image over half of it, and the tracks seen on one side of
+// mid-exposure alone put two tiles of ground_blur15's texture-poor wall nearer than anything in the
+// scene (4.2 and 3.6 times the nearest tracks' inverse depth, the blur found 42 px for 15).
+std::vector<double> tileNearest(const std::vector<Track>& tracks, int tiles) {
+  std::vector<int> seen(static_cast<size_t>(tiles), 0), possible(seen);
+  for (const Track& tr : tracks) {
+    for (const Eigen::Vector2d& q : tr.seen)
+      seen[static_cast<size_t>(tr.tile)] += std::isfinite(q.x());
+    possible[static_cast<size_t>(tr.tile)] += static_cast<int>(tr.seen.size());
+  }
+  std::vector<double> nearest(static_cast<size_t>(tiles), kNearestScale);
+  for (size_t j = 0; j < nearest.size(); ++j) {
+    if (possible[j] > 0 && seen[j] >= kSeenEverywhere * possible[j]) nearest[j] = kNearestSeen;
+  }
+  return nearest;
 }
 
 // Rotation alone (no depth model) or rotation and translation through a depth model, alternating
@@ -323,6 +346,12 @@ RigidFit fitRigid(const PinholeCamera& camera, const std::vector<Track>& tracks,
       start ? start->theta : std::vector<Vector3>(static_cast<size_t>(times), Vector3::Zero());
   f.p.assign(static_cast<size_t>(times), Vector3::Zero());
   f.rho.assign(tracks.size(), model ? 1 / 1.5 : 0.0);
+  f.nearest.assign(tracks.size(), kNearestScale);
+  if (model && model->per_tile) {
+    f.tile_nearest = tileNearest(tracks, model->tiles);
+    for (size_t i = 0; i < tracks.size(); ++i)
+      f.nearest[i] = f.tile_nearest[static_cast<size_t>(tracks[i].tile)];
+  }
   // The times are fitted independently (each its own figures, whatever the thread count).
   if (!model) {
 #pragma omp parallel for schedule(dynamic)
@@ -363,7 +392,8 @@ RigidFit fitRigid(const PinholeCamera& camera, const std::vector<Track>& tracks,
     if (!(nearest > 0)) break;
     const double scale = (1 / 1.5) / nearest;
     w *= scale;
-    for (double& r : f.rho) r = std::clamp(r * scale, 0.0, kNearestInverseDepth);
+    for (size_t i = 0; i < f.rho.size(); ++i)
+      f.rho[i] = std::clamp(f.rho[i] * scale, 0.0, f.nearest[i]);
     for (Vector3& v : f.p) v /= scale;
   }
   if (choose_offset) chooseDepthOffset(camera, tracks, times, mid, ridge, *model, f, w);
@@ -428,14 +458,19 @@ cv::Mat inverseDepthMap(const PinholeCamera& camera, const DepthModel& model, co
         const int x0 = std::min(static_cast<int>(fx), std::max(0, tiles_x - 2));
         const int x1 = std::min(x0 + 1, tiles_x - 1);
         const double ax = fx - x0;
-        rho.at<float>(y, x) = static_cast<float>(
+        const double value =
             (1 - ay) * ((1 - ax) * tile.at<float>(y0, x0) + ax * tile.at<float>(y0, x1)) +
-            ay * ((1 - ax) * tile.at<float>(y1, x0) + ax * tile.at<float>(y1, x1)));
+            ay * ((1 - ax) * tile.at<float>(y1, x0) + ax * tile.at<float>(y1, x1));
+        // At most as near as the pixel's own tile may be (tileNearest).
+        const int j = std::min(tiles_y - 1, y * tiles_y / H) * tiles_x +
+                      std::min(tiles_x - 1, x * tiles_x / W);
+        rho.at<float>(y, x) =
+            static_cast<float>(std::min(value, fit.tile_nearest[static_cast<size_t>(j)]));
       }
     }
   }
   cv::max(rho, 0.0, rho);
-  cv::min(rho, kNearestInverseDepth, rho);
+  if (!model.per_tile) cv::min(rho, kNearestScale, rho);
   return rho;
 }
 
