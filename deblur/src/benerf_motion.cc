@@ -75,8 +75,8 @@ constexpr double kHuberPx = 1.0;
 
 // The nearest a fitted depth may put a point, as an inverse depth in the registration's units
 // (where the nearest tracks, the 95th percentile, are at depth 1.5): 1 / 1.05, or depth 0.1 in a
-// tile whose tracks were seen at kSeenEverywhere of the times or more (tileNearest).
-constexpr double kNearestScale = 1 / 1.05, kNearestSeen = 10, kSeenEverywhere = 0.9;
+// tile whose tracks were seen on both sides of mid-exposure (tileNearest).
+constexpr double kNearestScale = 1 / 1.05, kNearestSeen = 10, kSeenEachSide = 0.5;
 
 double huberWeight(double r) { return r <= kHuberPx ? 1.0 : kHuberPx / r; }
 
@@ -318,20 +318,29 @@ void chooseDepthOffset(const PinholeCamera& camera, const std::vector<Track>& tr
 // scale's 95th percentile: bounded there (kNearestScale), rocket_layers' cup (1.1 m before gravel
 // at 8 m, under 5% of the tracks) was held at a fraction of its parallax and the plane chosen
 // (BENCHMARKS.md, "A near object that few tracks see"). A tile takes a nearer depth where its
-// tracks were seen over the whole exposure (kSeenEverywhere of the times): along the image's
-// border the flows leave the image over half of it, and the tracks seen on one side of
-// mid-exposure alone put two tiles of ground_blur15's texture-poor wall nearer than anything in the
-// scene (4.2 and 3.6 times the nearest tracks' inverse depth, the blur found 42 px for 15).
+// tracks were seen on both sides of mid-exposure (at kSeenEachSide of the times on each side or
+// more). A point seen on one side alone is leaving the image, where the flow follows its
+// neighbours: along the border of ground_blur15's texture-poor wall, two tiles seen before
+// mid-exposure alone came out nearer than anything in the scene (4.2 and 3.6 times the nearest
+// tracks' inverse depth, the blur found 42 px for 15). Near objects' tiles were seen at 0.61-1 of
+// the times on their less seen side, those border tiles at 0-0.07.
 std::vector<double> tileNearest(const std::vector<Track>& tracks, int tiles) {
-  std::vector<int> seen(static_cast<size_t>(tiles), 0), possible(seen);
+  std::vector<std::array<int, 2>> seen(static_cast<size_t>(tiles), {0, 0}), possible(seen);
   for (const Track& tr : tracks) {
-    for (const Eigen::Vector2d& q : tr.seen)
-      seen[static_cast<size_t>(tr.tile)] += std::isfinite(q.x());
-    possible[static_cast<size_t>(tr.tile)] += static_cast<int>(tr.seen.size());
+    const size_t mid = tr.seen.size() / 2, j = static_cast<size_t>(tr.tile);
+    for (size_t k = 0; k < tr.seen.size(); ++k) {
+      if (k == mid) continue;
+      const size_t side = k > mid;
+      ++possible[j][side];
+      seen[j][side] += std::isfinite(tr.seen[k].x());
+    }
   }
   std::vector<double> nearest(static_cast<size_t>(tiles), kNearestScale);
   for (size_t j = 0; j < nearest.size(); ++j) {
-    if (possible[j] > 0 && seen[j] >= kSeenEverywhere * possible[j]) nearest[j] = kNearestSeen;
+    bool both = true;
+    for (const size_t side : {0, 1})
+      both = both && possible[j][side] > 0 && seen[j][side] >= kSeenEachSide * possible[j][side];
+    if (both) nearest[j] = kNearestSeen;
   }
   return nearest;
 }

@@ -257,8 +257,8 @@ Vector3 rotationFromEvents(const Observation& obs, const nerf::PinholeCamera& ca
 // take away at least 15% of the plane's residual. The depths' common offset (nearly flat for the
 // flows, and where it sits the translation takes part of the rotation) is chosen by the tracks'
 // residual over offsets that put the farthest tracks at 0 to 1 of the nearest's inverse depth.
-// A tile whose tracks were seen over the whole exposure may be up to fifteen times nearer than
-// those nearest points (a near object that few tracks see), the others no nearer than depth 1.05.
+// A tile whose tracks were seen on both sides of mid-exposure may be up to fifteen times nearer
+// than those nearest points (a near object that few tracks see), the others no nearer than 1.05.
 // Where the depths are chosen, each pixel then takes its own inverse depth from its dense flows
 // (Gauss-Newton on the flows at the 8 other times, from the tiles' value, then a 5 x 5 median), and
 // each time's motion is fitted again through them, twice; the tiles' depths blur a near layer into
