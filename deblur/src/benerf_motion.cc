@@ -80,6 +80,11 @@ constexpr double kNearestScale = 1 / 1.05, kNearestSeen = 10, kSeenEachSide = 0.
 
 double huberWeight(double r) { return r <= kHuberPx ? 1.0 : kHuberPx / r; }
 
+// The tile of pixel (x, y) in a W x H image cut into tiles_x x tiles_y tiles, row-major.
+int tileOf(int x, int y, int W, int H, int tiles_x, int tiles_y) {
+  return std::min(tiles_y - 1, y * tiles_y / H) * tiles_x + std::min(tiles_x - 1, x * tiles_x / W);
+}
+
 // fitTime's ridge on the translation, over all the tracks.
 double translationRidge(const PinholeCamera& camera, const std::vector<Track>& tracks) {
   return 1e-4 * static_cast<double>(tracks.size()) * camera.fx * camera.fx;
@@ -234,10 +239,13 @@ double rmsResidual(const PinholeCamera& camera, const std::vector<Track>& tracks
 struct RigidFit {
   std::vector<Vector3> theta, p;
   std::vector<double> rho;           // per track
-  std::vector<double> nearest;       // per track: the largest inverse depth it may take
   std::vector<double> tile_nearest;  // per tile, under the tiles' model (tileNearest)
   Eigen::VectorXd w;                 // the depth model's weights (empty for a rotation alone)
   double residual_px = 0;
+  // The largest inverse depth a track may take.
+  double nearest(const Track& tr) const {
+    return tile_nearest.empty() ? kNearestScale : tile_nearest[static_cast<size_t>(tr.tile)];
+  }
 };
 
 // The value at `percent` of a copy of `values` (nth_element's order statistic).
@@ -310,7 +318,7 @@ void chooseDepthOffset(const PinholeCamera& camera, const std::vector<Track>& tr
   const double scale = (1 / 1.5) / (nearest + best);
   w *= scale;
   for (size_t i = 0; i < f.rho.size(); ++i)
-    f.rho[i] = std::clamp(f.rho[i] * scale, 0.0, f.nearest[i]);
+    f.rho[i] = std::clamp(f.rho[i] * scale, 0.0, f.nearest(tracks[i]));
   for (Vector3& v : f.p) v /= scale;
 }
 
@@ -355,12 +363,7 @@ RigidFit fitRigid(const PinholeCamera& camera, const std::vector<Track>& tracks,
       start ? start->theta : std::vector<Vector3>(static_cast<size_t>(times), Vector3::Zero());
   f.p.assign(static_cast<size_t>(times), Vector3::Zero());
   f.rho.assign(tracks.size(), model ? 1 / 1.5 : 0.0);
-  f.nearest.assign(tracks.size(), kNearestScale);
-  if (model && model->per_tile) {
-    f.tile_nearest = tileNearest(tracks, model->tiles);
-    for (size_t i = 0; i < tracks.size(); ++i)
-      f.nearest[i] = f.tile_nearest[static_cast<size_t>(tracks[i].tile)];
-  }
+  if (model && model->per_tile) f.tile_nearest = tileNearest(tracks, model->tiles);
   // The times are fitted independently (each its own figures, whatever the thread count).
   if (!model) {
 #pragma omp parallel for schedule(dynamic)
@@ -402,7 +405,7 @@ RigidFit fitRigid(const PinholeCamera& camera, const std::vector<Track>& tracks,
     const double scale = (1 / 1.5) / nearest;
     w *= scale;
     for (size_t i = 0; i < f.rho.size(); ++i)
-      f.rho[i] = std::clamp(f.rho[i] * scale, 0.0, f.nearest[i]);
+      f.rho[i] = std::clamp(f.rho[i] * scale, 0.0, f.nearest(tracks[i]));
     for (Vector3& v : f.p) v /= scale;
   }
   if (choose_offset) chooseDepthOffset(camera, tracks, times, mid, ridge, *model, f, w);
@@ -471,8 +474,7 @@ cv::Mat inverseDepthMap(const PinholeCamera& camera, const DepthModel& model, co
             (1 - ay) * ((1 - ax) * tile.at<float>(y0, x0) + ax * tile.at<float>(y0, x1)) +
             ay * ((1 - ax) * tile.at<float>(y1, x0) + ax * tile.at<float>(y1, x1));
         // At most as near as the pixel's own tile may be (tileNearest).
-        const int j = std::min(tiles_y - 1, y * tiles_y / H) * tiles_x +
-                      std::min(tiles_x - 1, x * tiles_x / W);
+        const int j = tileOf(x, y, W, H, tiles_x, tiles_y);
         rho.at<float>(y, x) =
             static_cast<float>(std::min(value, fit.tile_nearest[static_cast<size_t>(j)]));
       }
@@ -502,13 +504,12 @@ cv::Mat pixelInverseDepth(const PinholeCamera& camera, const std::vector<cv::Mat
                           const cv::Mat& prior, double variance) {
   const int W = camera.width, H = camera.height, times = static_cast<int>(theta.size());
   const std::vector<Matrix3> Rt = transposedRotations(theta);
-  // A pixel's own inverse depth at most the prior's largest (or 1 / 1.05, the nearest tracks' scale
-  // with a margin): one beyond the nearest the tracks saw is no surface's (see at_bound below);
-  // unbounded, such pixels along text_coins_blur60's occluding edges lengthened the blur found
-  // from 58 to 90 px (the truth 60).
+  // A pixel's own inverse depth at most the prior's largest (or kNearestScale): one beyond the
+  // nearest the tracks saw is no surface's (see at_bound below); unbounded, such pixels along
+  // text_coins_blur60's occluding edges lengthened the blur found from 58 to 90 px (the truth 60).
   double upper = 0;
   cv::minMaxLoc(prior, nullptr, &upper);
-  upper = std::max(upper, 1 / 1.05);
+  upper = std::max(upper, kNearestScale);
   cv::Mat rho(H, W, CV_32F);
 #pragma omp parallel for schedule(static)
   for (int y = 0; y < H; ++y) {
@@ -629,8 +630,7 @@ TrackedPoints trackLatentFrames(const Observation& obs, const std::optional<Cont
       if (texture.at<float>(y, x) < min_texture) continue;
       Track tr;
       tr.pixel = {x, y};
-      tr.tile =
-          std::min(kTilesY - 1, y * kTilesY / H) * kTilesX + std::min(kTilesX - 1, x * kTilesX / W);
+      tr.tile = tileOf(x, y, W, H, kTilesX, kTilesY);
       tr.seen.assign(kIntervals + 1, Eigen::Vector2d::Constant(std::nan("")));
       tracks.push_back(std::move(tr));
     }
@@ -686,7 +686,7 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
   // Parallax: how far the tiles' depths move the image off the motion of the plane that fits them
   // best, over the exposure (the 99th percentile over the tracks: a near object that few tracks see
   // is under 5% of them; at the 95th, cameraman_grass through a wider lens, its camera at 1.6 m
-  // moving 12 px against the grass at 6 m, showed 0.37 px and the plane was chosen).
+  // 7-9 px off the motion of the grass at 6 m, showed 0.37 px and the plane was chosen).
   Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
   Vector3 b = Vector3::Zero();
   for (size_t i = 0; i < tracks.size(); ++i) {
