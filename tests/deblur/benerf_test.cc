@@ -916,8 +916,8 @@ TEST(Benerf, ThresholdsNotGivenAreTheScaleThatTheMotionExplains) {
 // the solved image re-blurs closest to the frame. The cameraman before grass at half the suite's
 // size with 30 px of blur, contrast.txt removed: EDI's search ends at 0.5 (20.0 dB), and the motion
 // registered there was poor enough to put the c from the motion at 0.092 until each time's flows
-// started from their neighbour's; now 0.191, and three solves end at 0.205 (the truth is 0.2),
-// 33.9 dB. Both within 15% of the truth, and BeNeRF 5 dB ahead of EDI.
+// started from their neighbour's; now 0.193, and three solves 2^(1/6) apart end at 0.208 (the
+// truth is 0.2), 33.9 dB. Both within 15% of the truth, and BeNeRF 5 dB ahead of EDI.
 TEST(Benerf, ThresholdsNotGivenAreRefinedByShortSolvesOfTheGrid) {
   const auto natural = naturalObservation("cameraman_grass", 1, 30);
   if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
