@@ -287,6 +287,16 @@ std::vector<double> PixelGridProblem::start(const cv::Mat& mid_image) const {
   return x;
 }
 
+bool PixelGridProblem::clipped(float frame) const {
+  return options_.saturated > 0 && frame >= options_.saturated;
+}
+
+// The blur term's residual: the views' mean less the frame, where a clipped channel reads its
+// top for any mean above it.
+double PixelGridProblem::blurResidual(double mean, float frame) const {
+  return (clipped(frame) ? std::min(mean, static_cast<double>(frame)) : mean) - frame;
+}
+
 double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<double>* gradient,
                                   Terms* terms) const {
   // The unknowns are the cells' log intensities (the event model's mapping); the views sample the
@@ -363,7 +373,7 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
           d_grey[static_cast<size_t>(k)] *= log.logSlope(greys[static_cast<size_t>(k)]);
         double d_sum[3] = {0, 0, 0};
         for (int c = 0; c < C; ++c) {
-          const double r = sum[c] / V - blurry_.ptr<float>(y)[px * C + c];
+          const double r = blurResidual(sum[c] / V, blurry_.ptr<float>(y)[px * C + c]);
           blur_sum += r * r;
           d_sum[c] = 2 * blur_scale * r / V;
         }
@@ -666,7 +676,9 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
           be[ki] += event_scale * weight * g * r;
         }
         for (int c = 0; c < C; ++c) {
-          const double r = sum[c] / V - blurry_.ptr<float>(y)[px * C + c];
+          const float frame = blurry_.ptr<float>(y)[px * C + c];
+          if (clipped(frame) && sum[c] / V >= frame) continue;  // flat in the motion as well
+          const double r = sum[c] / V - frame;
           const Eigen::VectorXd& j = jb[static_cast<size_t>(c)];
           Hl.noalias() += blur_scale * j * j.transpose();
           bl += blur_scale * r * j;

@@ -618,14 +618,16 @@ GridScene gridScene(bool colour) {
 
 // The pixel grid's loss against central differences in double, on a scene that moves with
 // rotation and translation over a slanted inverse depth, with two cells per pixel, grey and colour
-// (with the chroma's smoothness), under both log mappings: every checked cell's gradient (inside
-// the image, in the margin, and the mid-exposure cells the event term reads directly).
+// (with the chroma's smoothness), under both log mappings, and a block of the frame clipped at the
+// top (its re-blur above the top costs nothing): every checked cell's gradient (inside the image,
+// in the margin, and the mid-exposure cells the event term reads directly).
 TEST(PixelGrid, GradientsMatchCentralDifferences) {
   const Threads one_thread(1);  // small parallel regions only wait on each other
   for (const bool colour : {false, true}) {
     for (const bool lin_log : {false, true}) {
       SCOPED_TRACE(std::string(colour ? "colour" : "grey") + (lin_log ? ", lin-log" : ", log"));
-      const GridScene scene = gridScene(colour);
+      GridScene scene = gridScene(colour);
+      scene.obs.blurry.image(cv::Rect(4, 3, 8, 6)).setTo(cv::Scalar::all(1.0));
       const Observation& obs = scene.obs;
       cv::Mat inverse_depth(18, 24, CV_32F);
       for (int y = 0; y < 18; ++y) {
@@ -680,6 +682,31 @@ TEST(PixelGrid, GradientsMatchCentralDifferences) {
       }
     }
   }
+}
+
+// A channel of the blurry frame at the sensor's top says only that the exposure's mean reached
+// it: a re-blur above it costs nothing, one below it as anywhere else. A frame clipped
+// everywhere: an image at 1.5 re-blurs with no cost, where every pixel as a mean would cost
+// 0.5^2; one at 0.8 costs 0.2^2 either way.
+TEST(PixelGrid, AClippedPixelOfTheFrameCostsOnlyBelowItsTop) {
+  GridScene scene = gridScene(false);
+  scene.obs.blurry.image.setTo(cv::Scalar::all(1.0));
+  PixelGridOptions clipped, mean;
+  mean.saturated = 0;
+  const PixelGridProblem with(scene.obs, scene.camera, scene.motion, cv::Mat(), Contrast{0.2, 0.2},
+                              clipped);
+  const PixelGridProblem without(scene.obs, scene.camera, scene.motion, cv::Mat(),
+                                 Contrast{0.2, 0.2}, mean);
+  const cv::Mat top = scene.obs.blurry.image;
+  PixelGridProblem::Terms terms;
+  with.evaluate(with.start(top * 1.5), nullptr, &terms);
+  EXPECT_EQ(terms.blur, 0.0);
+  without.evaluate(without.start(top * 1.5), nullptr, &terms);
+  EXPECT_NEAR(terms.blur, 0.25, 1e-6);
+  with.evaluate(with.start(top * 0.8), nullptr, &terms);
+  EXPECT_NEAR(terms.blur, 0.04, 1e-6);
+  without.evaluate(without.start(top * 0.8), nullptr, &terms);
+  EXPECT_NEAR(terms.blur, 0.04, 1e-6);
 }
 
 // The held-out pixels (one 8 x 8 block in four) leave the event term, which keeps its
@@ -769,12 +796,14 @@ namespace evkit {
 namespace {
 
 // The pixel grid's gradient in the motion (the knots' right perturbations) against central
-// differences of its loss, the image fixed, on a grey and a colour scene.
+// differences of its loss, the image fixed, on a grey and a colour scene with a block of the frame
+// clipped at the top.
 TEST(PixelGrid, MotionGradientMatchesCentralDifferences) {
   const Threads one_thread(1);  // small parallel regions only wait on each other
   for (const bool colour : {false, true}) {
     SCOPED_TRACE(colour ? "colour" : "grey");
-    const GridScene scene = gridScene(colour);
+    GridScene scene = gridScene(colour);
+    scene.obs.blurry.image(cv::Rect(4, 3, 8, 6)).setTo(cv::Scalar::all(1.0));  // clipped
     const Observation& obs = scene.obs;
     PixelGridOptions o;
     o.beta = 0.3;

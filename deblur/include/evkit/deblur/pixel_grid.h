@@ -39,6 +39,11 @@ struct PixelGridOptions {
   // started); the short ones hold the local changes (BENCHMARKS.md, "The pixel grid").
   double event_window = 0;
   int motion_steps = 6;  // Levenberg-Marquardt steps on the motion before the image
+  // A channel of the blurry frame at or above this (linear intensity) is taken as clipped by the
+  // sensor: it says only that the exposure's mean reached the top, so a re-blur above it costs
+  // nothing there (the blur term's residual is min(mean of the views, B) - B). 0 or below: every
+  // pixel is a mean. EdiOptions::saturated masks the same pixels.
+  double saturated = 0.99;
   LogMapping log;
 };
 
@@ -133,6 +138,11 @@ class PixelGridProblem {
   double eventPenalty(double r, double* weight) const;  // from a log value, and dI/du
   // A mid-image coordinate on the canvas's cell grid.
   double cellCoordinate(double image) const { return (image + margin_) * options_.subdivision; }
+
+  // A channel of the frame that the sensor clipped (PixelGridOptions::saturated), and the blur
+  // term's residual there and elsewhere.
+  bool clipped(float frame) const;
+  double blurResidual(double mean, float frame) const;
 
   PinholeCamera camera_;
   PixelGridOptions options_;
