@@ -634,8 +634,9 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   const auto render_start = Clock::now();
   for (int64_t t : request.times_us) {
     Frame f;
-    // A frame as the sensor would record it: where the blurry frame clipped, the image may go
-    // above its top (PixelGridOptions::saturated), and the frame reads the top there.
+    // A frame as the sensor would record it, read at its top where the image goes above it: where
+    // the blurry frame clipped (PixelGridOptions::saturated), or where the events' noise pushed
+    // a pixel up (the noisy suite's text, whose truth is at most 0.95).
     f.image = cv::min(problem.render(x, t), 1.0);
     f.exposure_start_us = f.exposure_end_us = t;
     f.bit_depth = obs.blurry.bit_depth;
