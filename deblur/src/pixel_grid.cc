@@ -292,9 +292,11 @@ bool PixelGridProblem::clipped(float frame) const {
 }
 
 // The blur term's residual: the views' mean less the frame, where a clipped channel reads its
-// top for any mean above it.
-double PixelGridProblem::blurResidual(double mean, float frame) const {
-  return (clipped(frame) ? std::min(mean, static_cast<double>(frame)) : mean) - frame;
+// top for any mean above it (`flat`: there, where the residual moves with nothing).
+double PixelGridProblem::blurResidual(double mean, float frame, bool* flat) const {
+  const bool above = clipped(frame) && mean >= frame;
+  if (flat) *flat = above;
+  return above ? 0.0 : mean - frame;
 }
 
 double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<double>* gradient,
@@ -676,9 +678,9 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
           be[ki] += event_scale * weight * g * r;
         }
         for (int c = 0; c < C; ++c) {
-          const float frame = blurry_.ptr<float>(y)[px * C + c];
-          if (clipped(frame) && sum[c] / V >= frame) continue;  // flat in the motion as well
-          const double r = sum[c] / V - frame;
+          bool flat = false;
+          const double r = blurResidual(sum[c] / V, blurry_.ptr<float>(y)[px * C + c], &flat);
+          if (flat) continue;  // flat in the motion as well
           const Eigen::VectorXd& j = jb[static_cast<size_t>(c)];
           Hl.noalias() += blur_scale * j * j.transpose();
           bl += blur_scale * r * j;

@@ -140,9 +140,9 @@ class PixelGridProblem {
   double cellCoordinate(double image) const { return (image + margin_) * options_.subdivision; }
 
   // A channel of the frame that the sensor clipped (PixelGridOptions::saturated), and the blur
-  // term's residual there and elsewhere.
+  // term's residual there and elsewhere (`flat`: clipped with the mean above the top).
   bool clipped(float frame) const;
-  double blurResidual(double mean, float frame) const;
+  double blurResidual(double mean, float frame, bool* flat = nullptr) const;
 
   PinholeCamera camera_;
   PixelGridOptions options_;
