@@ -43,8 +43,10 @@ void Adam<T>::step() {
     if (b.touched == nullptr) {
       for (size_t i = 0; i < b.size; ++i) update(i);
     } else {
+      // Runs of rows go to whichever thread is free: a split in halves gave one thread the coarse
+      // levels (few rows touched) and left it waiting for the other.
       const size_t rows = b.size / b.row_size;
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(dynamic, 4096)
       for (size_t r = 0; r < rows; ++r) {
         if (!b.touched[r]) continue;
         for (size_t i = r * b.row_size; i < (r + 1) * b.row_size; ++i) update(i);

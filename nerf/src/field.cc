@@ -162,7 +162,9 @@ class HashField final : public RadianceField<T> {
     const auto& b1 = mlp_.biases()[1];
     Matrix out(1 + channels_, n);
     hidden_.resize(w0.rows(), n);
-#pragma omp parallel for schedule(static)
+    // Blocks go to whichever thread is free (each block's outputs are its own: the same result for
+    // any split).
+#pragma omp parallel for schedule(dynamic, 4)
     for (Eigen::Index begin = 0; begin < n; begin += kBlock) {
       const Eigen::Index count = std::min(kBlock, n - begin);
       auto x = features_.middleCols(begin, count);
@@ -198,12 +200,12 @@ class HashField final : public RadianceField<T> {
     const Matrix& w1 = mlp_.weights()[1];
     d_features_.resize(static_cast<size_t>(features_.size()));
     // Parameter gradients per lane (a fixed run of blocks), added in lane order: the same sums
-    // whatever the number of threads. (The kernels accumulate the output weights' gradient
-    // transposed, in dw1t.)
+    // whatever the number of threads, and whichever thread runs a lane (they go to the free one).
+    // (The kernels accumulate the output weights' gradient transposed, in dw1t.)
     const Eigen::Index blocks = (n + kBlock - 1) / kBlock;
     std::vector<Matrix> dw0(kLanes), dw1(kLanes), dw1t(kLanes), db0(kLanes), db1(kLanes);
     const Matrix w0t = w0.transpose(), w1t = w1.transpose();
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(dynamic, 1)
     for (size_t t = 0; t < kLanes; ++t) {
       dw0[t] = Matrix::Zero(w0.rows(), w0.cols());
       dw1[t] = Matrix::Zero(w1.rows(), w1.cols());

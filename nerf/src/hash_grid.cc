@@ -232,13 +232,17 @@ typename HashGrid<T>::Matrix HashGrid<T>::backwardLevelMajor(const T* d_features
   const T* p[3] = {positions_.col(0).data(), positions_.col(1).data(), positions_.col(2).data()};
   const uint32_t mask = static_cast<uint32_t>(entries_ - 1);
   // Each level is one thread's at a time (its table slice: no atomics) with its own position
-  // sums, added in level order afterwards: the same sums whatever the number of threads.
+  // sums, added in level order afterwards: the same sums whatever the number of threads. The levels
+  // go to whichever thread is free, finest (hashed, the costliest) first: dealt in turn, one of
+  // two threads got the finer half of each pair and the other waited for it.
   std::vector<Matrix>& partial = level_positions_;
   partial.resize(static_cast<size_t>(config_.levels));
+  Matrix d_positions(3, n);
 #pragma omp parallel
   {
-#pragma omp for schedule(static, 1)
-    for (int l = 0; l < config_.levels; ++l) {
+#pragma omp for schedule(dynamic, 1)
+    for (int finest = 0; finest < config_.levels; ++finest) {
+      const int l = config_.levels - 1 - finest;
       Matrix& local = partial[static_cast<size_t>(l)];
       local.resize(n, 3);  // one array per axis; keeps its allocation for the same n
       local.setZero();
@@ -269,12 +273,17 @@ typename HashGrid<T>::Matrix HashGrid<T>::backwardLevelMajor(const T* d_features
           break;
       }
     }
+    // The levels' sums in level order, threads over samples.
+#pragma omp for schedule(static)
+    for (Eigen::Index k = 0; k < n; ++k) {
+      for (int a = 0; a < 3; ++a) {
+        T sum = 0;
+        for (const Matrix& local : partial) sum += local(k, a);
+        d_positions(a, k) = sum;
+      }
+    }
   }
-  Matrix d_positions = Matrix::Zero(n, 3);
-  for (const Matrix& local : partial) {
-    if (local.size()) d_positions += local;
-  }
-  return d_positions.transpose();
+  return d_positions;
 }
 
 template <typename T>
@@ -283,7 +292,7 @@ typename HashGrid<T>::Matrix HashGrid<T>::forward(const Matrix& positions) {
   setPositions(positions);
   Matrix out(outputSize(), n);
   constexpr Eigen::Index kBlock = 256;  // samples per thread's block
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(dynamic, 4)
   for (Eigen::Index begin = 0; begin < n; begin += kBlock) {
     encode(begin, std::min(kBlock, n - begin), out.col(begin).data(), outputSize());
   }

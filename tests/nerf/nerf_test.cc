@@ -330,6 +330,56 @@ TEST(Fields, HashFieldKernelsMatchEigensProducts) {
   }
 }
 
+// The hash field's forward and backward and Adam's step deal their work to whichever thread is
+// free (blocks of samples, lanes of parameter sums, the grid's levels, runs of table rows), each
+// piece summed on its own and the pieces added in a fixed order: one thread and two must give
+// the same bits. 5,000 samples: 20 blocks and a tail, 16 lanes, every level.
+TEST(Fields, HashFieldAndAdamGiveTheSameBitsOnOneThreadAndTwo) {
+  HashFieldConfig c;
+  c.grid.log2_table = 12;
+  const int n = 5000;
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  Eigen::MatrixXf p(3, n), w(4, n);
+  for (float& v : p.reshaped()) v = 0.95f * u(rng);
+  for (float& v : w.reshaped()) v = u(rng);
+  struct Run {
+    Eigen::MatrixXf out, dp;
+    std::vector<std::vector<float>> gradients, values;
+  };
+  const auto run = [&](int threads) {
+    const int saved = omp_get_max_threads();
+    omp_set_num_threads(threads);
+    auto field = makeHashField<float>(c, 3, 4);
+    Adam<float> adam(field->parameters(), AdamOptions{});
+    Run r;
+    for (int step = 0; step < 2; ++step) {
+      field->zeroGradients();
+      r.out = field->forward(p);
+      r.dp = field->backward(w);
+      adam.step();
+    }
+    for (const ParameterBlock<float>& b : field->parameters()) {
+      r.gradients.emplace_back(b.gradients, b.gradients + b.size);
+      r.values.emplace_back(b.values, b.values + b.size);
+    }
+    omp_set_num_threads(saved);
+    return r;
+  };
+  const Run one = run(1), two = run(2);
+  EXPECT_TRUE(one.out == two.out);
+  EXPECT_TRUE(one.dp == two.dp);
+  ASSERT_EQ(one.gradients.size(), two.gradients.size());
+  for (size_t b = 0; b < one.gradients.size(); ++b) {
+    EXPECT_TRUE(one.gradients[b] == two.gradients[b]) << "block " << b;
+    EXPECT_TRUE(one.values[b] == two.values[b]) << "block " << b;
+  }
+  // The step moved the table (the comparison is not of two untouched copies).
+  auto untrained = makeHashField<float>(c, 3, 4);
+  const ParameterBlock<float> table = untrained->parameters()[0];
+  EXPECT_FALSE(one.values[0] == std::vector<float>(table.values, table.values + table.size));
+}
+
 TEST(Camera, NdcPointPoseJacobianAgainstCentralDifferences) {
   PinholeCamera cam = PinholeCamera{60.0, 58.0, 31.5, 23.5, {}}.withSize(64, 48);
   const SE3 T(expSO3(Vector3(0.02, -0.03, 0.01)), Vector3(0.05, -0.02, 0.03));
