@@ -97,9 +97,14 @@ void fitTime(const PinholeCamera& camera, const std::vector<Track>& tracks,
              const std::vector<double>& rho, int time, bool translate, double ridge, Vector3& theta,
              Vector3& p) {
   const int n = translate ? 6 : 3;
+  // Fixed-size terms (no allocation per track); without translation the last three columns of J
+  // stay zero and the rotation's 3 x 3 block is solved.
+  using Matrix26 = Eigen::Matrix<double, 2, 6>;
+  using Matrix66 = Eigen::Matrix<double, 6, 6>;
+  using Vector6d = Eigen::Matrix<double, 6, 1>;
   for (int iteration = 0; iteration < 8; ++iteration) {
-    Eigen::MatrixXd H = Eigen::MatrixXd::Zero(n, n);
-    Eigen::VectorXd g = Eigen::VectorXd::Zero(n);
+    Matrix66 H = Matrix66::Zero();
+    Vector6d g = Vector6d::Zero();
     // The rotation and its three perturbed copies for the Jacobian's columns (forward differences).
     std::array<Matrix3, 4> Rt;
     Rt[0] = transposedRotation(theta);
@@ -108,13 +113,13 @@ void fitTime(const PinholeCamera& camera, const std::vector<Track>& tracks,
       dt[k] += 1e-6;
       Rt[static_cast<size_t>(k) + 1] = transposedRotation(dt);
     }
+    Matrix26 J = Matrix26::Zero();
     for (size_t i = 0; i < tracks.size(); ++i) {
       const Track& tr = tracks[i];
       const Eigen::Vector2d& q = tr.seen[static_cast<size_t>(time)];
       if (!std::isfinite(q.x())) continue;
       const double r = translate ? rho[i] : 0.0;
       const Eigen::Vector2d r0 = predict(camera, tr.bearing, r, Rt[0], p) - q;
-      Eigen::Matrix<double, 2, Eigen::Dynamic> J(2, n);
       for (int k = 0; k < n; ++k) {
         const Matrix3& R = k < 3 ? Rt[static_cast<size_t>(k) + 1] : Rt[0];
         Vector3 dp = p;
@@ -122,17 +127,20 @@ void fitTime(const PinholeCamera& camera, const std::vector<Track>& tracks,
         J.col(k) = (predict(camera, tr.bearing, r, R, dp) - r0 - q) / 1e-6;
       }
       const double w = huberWeight(r0.norm());
-      H += w * J.transpose() * J;
-      g += w * J.transpose() * r0;
+      H.noalias() += w * J.transpose() * J;
+      g.noalias() += w * J.transpose() * r0;
     }
+    Vector6d step = Vector6d::Zero();
     if (translate) {
-      H.bottomRightCorner(3, 3) += ridge * Matrix3::Identity();
-      g.tail(3) += ridge * p;
+      H.bottomRightCorner<3, 3>() += ridge * Matrix3::Identity();
+      g.tail<3>() += ridge * p;
+      step = H.ldlt().solve(-g);
+    } else {
+      step.head<3>() = H.topLeftCorner<3, 3>().ldlt().solve(-g.head<3>());
     }
-    const Eigen::VectorXd step = H.ldlt().solve(-g);
     if (!step.allFinite()) return;
-    theta += step.head(3);
-    if (translate) p += step.tail(3);
+    theta += step.head<3>();
+    if (translate) p += step.tail<3>();
     if (step.norm() < 1e-10) break;
   }
 }
