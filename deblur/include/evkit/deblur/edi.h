@@ -24,10 +24,10 @@ namespace evkit {
 struct EdiOptions {
   std::optional<Contrast> contrast;  // fixed thresholds; else contrast.txt; else the search
   bool use_observation_contrast = true;
-  double search_min = 0.1, search_max = 0.5;  // the published range for DAVIS data
-  int search_grid = 21;                       // coarse grid, then golden-section refinement
-  double saturated = 0.99, black = 0.005;     // masks (linear intensity)
-  int64_t margin_us = 0;                      // widen the integration window on both sides
+  double search_min = 0.1, search_max = 0.5;          // the published range for DAVIS data
+  int search_grid = 21;                               // coarse grid, then golden-section refinement
+  double saturated = Frame::kClipped, black = 0.005;  // masks (linear intensity)
+  int64_t margin_us = 0;                              // widen the integration window on both sides
 
   // Throws evkit::Error naming the first setting out of its range.
   void check() const;

@@ -42,8 +42,8 @@ struct PixelGridOptions {
   // A channel of the blurry frame at or above this (linear intensity) is taken as clipped by the
   // sensor: it says only that the exposure's mean reached the top, so a re-blur above it costs
   // nothing there (the blur term's residual is min(mean of the views, B) - B). 0 or below: every
-  // pixel is a mean. EdiOptions::saturated masks the same pixels.
-  double saturated = 0.99;
+  // pixel is a mean. EdiOptions::saturated masks the same pixels (both Frame::kClipped).
+  double saturated = Frame::kClipped;
   LogMapping log;
 };
 

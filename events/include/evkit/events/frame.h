@@ -8,6 +8,11 @@
 namespace evkit {
 
 struct Frame {
+  // The level from which a channel was clipped by the sensor: its exposure's mean reached the top,
+  // so the value says only that the mean was at least this. EDI masks such pixels and the pixel
+  // grid's blur term charges only a re-blur below it (EdiOptions, PixelGridOptions::saturated).
+  static constexpr double kClipped = 0.99;
+
   // float32, linear, [0,1]; CV_32FC1 (grey) or CV_32FC3 (colour in OpenCV's BGR order).
   cv::Mat image;
   int64_t exposure_start_us = 0;
