@@ -10,6 +10,7 @@
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
+#include <stdexcept>
 
 #include "benerf_common.h"
 #include "evkit/deblur/benerf.h"
@@ -570,8 +571,6 @@ cv::Mat pixelInverseDepth(const PinholeCamera& camera, const std::vector<cv::Mat
 
 namespace {
 
-constexpr int kIntervals = 8;
-
 // The forward flow where it passes the forward-backward check (back to within half a pixel and 5%
 // of its length), NaN elsewhere.
 cv::Mat checkedFlow(const cv::Mat& forward, const cv::Mat& backward) {
@@ -605,15 +604,17 @@ struct TrackedPoints {
 };
 
 TrackedPoints trackLatentFrames(const Observation& obs, const std::optional<Contrast>& contrast,
-                                const LogMapping& log) {
+                                const LogMapping& log, int intervals) {
+  if (intervals < 2 || intervals > 64 || intervals % 2 != 0)
+    throw std::invalid_argument("motionFromLatentFrames: intervals must be even, 2-64");
   TrackedPoints out;
-  const int mid = kIntervals / 2;
+  const int mid = intervals / 2;
   const int64_t t0 = obs.blurry.exposure_start_us, t1 = obs.blurry.exposure_end_us;
   EdiOptions edi_options;
   edi_options.use_observation_contrast = false;
   edi_options.contrast = contrast;
   DeblurRequest request;
-  for (int k = 0; k <= kIntervals; ++k) request.times_us.push_back(t0 + (t1 - t0) * k / kIntervals);
+  for (int k = 0; k <= intervals; ++k) request.times_us.push_back(t0 + (t1 - t0) * k / intervals);
   out.times = request.times_us;
   const DeblurResult latent = EdiDeblurrer{edi_options}.run(obs, request);
 
@@ -639,12 +640,12 @@ TrackedPoints trackLatentFrames(const Observation& obs, const std::optional<Cont
       Track tr;
       tr.pixel = {x, y};
       tr.tile = tileOf(x, y, W, H, kTilesX, kTilesY);
-      tr.seen.assign(kIntervals + 1, Eigen::Vector2d::Constant(std::nan("")));
+      tr.seen.assign(intervals + 1, Eigen::Vector2d::Constant(std::nan("")));
       tracks.push_back(std::move(tr));
     }
   }
   auto dis = cv::DISOpticalFlow::create(cv::DISOpticalFlow::PRESET_MEDIUM);
-  out.flows.resize(kIntervals + 1);
+  out.flows.resize(intervals + 1);
   for (Track& tr : tracks) tr.seen[mid] = tr.pixel;
   // Outwards from mid-exposure, each time's flows started from its inner neighbour's: the image
   // moves a few pixels between neighbouring times but up to half the blur from mid-exposure, and
@@ -654,7 +655,7 @@ TrackedPoints trackLatentFrames(const Observation& obs, const std::optional<Cont
     // The inner neighbour's flows, DIS's start (it starts from a flow given at the images' size);
     // none next to mid-exposure.
     cv::Mat forward, backward;
-    for (int k = mid + step; k >= 0 && k <= kIntervals; k += step) {
+    for (int k = mid + step; k >= 0 && k <= intervals; k += step) {
       const cv::Mat other = to8.convert(benerf_detail::logGrey(latent.frames[k].image, log));
       dis->calc(mid8, other, forward);
       dis->calc(other, mid8, backward);
@@ -674,14 +675,14 @@ TrackedPoints trackLatentFrames(const Observation& obs, const std::optional<Cont
 ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, bool choose_offset) {
   ExposureMotion m;
   std::vector<Track>& tracks = points.tracks;
-  const int mid = kIntervals / 2, kTilesX = points.tiles_x, kTilesY = points.tiles_y;
+  const int times = static_cast<int>(points.times.size()), mid = times / 2;
+  const int kTilesX = points.tiles_x, kTilesY = points.tiles_y;
   for (Track& tr : tracks) tr.bearing = nerf::pixelDirection(camera, tr.pixel.x(), tr.pixel.y());
   m.tracks = static_cast<int>(tracks.size());
   if (tracks.size() < 50) return m;
 
   // Three models of rising richness: a rotation alone; a rotation and a translation seen through
   // one plane (a homography per time); the same through an inverse depth per tile.
-  const int times = kIntervals + 1;
   const RigidFit rotation = fitRigid(camera, tracks, times, mid, nullptr, nullptr, false);
   const DepthModel plane_model{false, 0}, tile_model{true, kTilesX * kTilesY};
   const RigidFit plane =
@@ -766,15 +767,16 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
 
 ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamera& camera,
                                       const std::optional<Contrast>& contrast,
-                                      const LogMapping& log, bool choose_depth_offset) {
-  TrackedPoints points = trackLatentFrames(obs, contrast, log);
+                                      const LogMapping& log, bool choose_depth_offset,
+                                      int intervals) {
+  TrackedPoints points = trackLatentFrames(obs, contrast, log, intervals);
   return fitMotion(camera, points, choose_depth_offset);
 }
 
 CalibratedMotion calibrateFromLatentFrames(const Observation& obs, const PinholeCamera& assumed,
                                            const std::optional<Contrast>& contrast,
-                                           const LogMapping& log) {
-  TrackedPoints points = trackLatentFrames(obs, contrast, log);
+                                           const LogMapping& log, int intervals) {
+  TrackedPoints points = trackLatentFrames(obs, contrast, log, intervals);
   CalibratedMotion best;
   best.camera = assumed;
   best.motion = fitMotion(assumed, points, true);

@@ -103,8 +103,9 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
                 "the pixel grid stops once its loss fell by less than this fraction over its last "
                 "10 steps (fast: 3e-3, balanced: 1e-3, quality: 0, every step)")
         .integer("knots", &O::knots, {0},
-                 "trajectory knots (0: the pixel grid's from its registered motion, 4 to 7 by "
-                 "leave-one-out; the fields' 4)")
+                 "trajectory knots (0: the pixel grid's from its registered motion by "
+                 "leave-one-out, 4 to 7 from 9 poses, to 15 from 17 for a motion that turns; the "
+                 "fields' 4)")
         .choice("trajectory", &O::trajectory,
                 {{"cubic", TrajectoryKind::kCubicSE3},
                  {"split", TrajectoryKind::kCubicSplit},

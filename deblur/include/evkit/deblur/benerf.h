@@ -282,10 +282,19 @@ struct ExposureMotion {
 };
 // choose_depth_offset false: the depths' common offset is left where the alternation of motions and
 // depths put it (the image motion nearly alike, the split between rotation and translation less
-// right; about 0.5 s less), for registrations that are only scored.
+// right; about 0.5 s less), for registrations that are only scored. `intervals`: the exposure is
+// cut into that many (even, 2-64), EDI's latent frame is made at each end and the motion
+// registered there: kScoredIntervals where a registration is only scored (the contrast's search),
+// kTrajectoryIntervals for the one that the trajectory is fitted to. Eight intervals cost half as
+// much, and nine poses determine a spline of at most 7 knots with one pose left out and another to
+// spare; a shake that turns four times within the exposure (8 knots) needs more: on one at 30 px
+// the pixel grid got 23.05 dB from nine poses and 34.71 from seventeen (EDI 31.91; BENCHMARKS.md,
+// "A motion that turns").
+inline constexpr int kScoredIntervals = 8, kTrajectoryIntervals = 16;
 ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamera& camera,
                                       const std::optional<Contrast>& contrast,
-                                      const LogMapping& log = {}, bool choose_depth_offset = true);
+                                      const LogMapping& log = {}, bool choose_depth_offset = true,
+                                      int intervals = kScoredIntervals);
 
 // The camera where no calibration was given: the radial distortion k1 (OpenCV's model, k2 = p1 =
 // p2 = 0) that lets the rigid camera explain the points tracked between EDI's latent frames best
@@ -307,7 +316,8 @@ struct CalibratedMotion {
 };
 CalibratedMotion calibrateFromLatentFrames(const Observation& obs, const PinholeCamera& assumed,
                                            const std::optional<Contrast>& contrast,
-                                           const LogMapping& log = {});
+                                           const LogMapping& log = {},
+                                           int intervals = kScoredIntervals);
 
 // One optimisation problem: the observation's data, the field and the trajectory. Templated on the
 // scalar so that the whole pipeline can be checked against finite differences in double.
