@@ -447,6 +447,13 @@ constexpr int kMinKnots = 4;
 // turn four times (8 knots) nine poses chose 6 and seventeen 8 (planes: 23.05 -> 34.71 dB, EDI
 // 31.91; BENCHMARKS.md, "A motion that turns").
 constexpr int kTurningKnots = 6;
+// From 17 poses the folds' neighbours are 1/16 of the exposure away and their errors correlated
+// (each time's flows start from its inner neighbour's), so the standard error understates the
+// spread and the one-standard-error rule took 8-10 knots on smooth shakes whose counts differed by
+// hundredths of a pixel (a 6-knot shake: 42.94 dB with 10, 43.58 with the 6 of nine poses). A count
+// within a tenth of a pixel of the least held-out RMS qualifies too: less than the grid's
+// half-pixel cells resolve.
+constexpr double kDenseKnotTolerancePx = 0.1;
 
 // The smoothness candidates, in the order tried: PixelGridOptions' default first.
 constexpr std::array<double, 3> kSmoothness{0.01, 0.03, 0.1};
@@ -528,8 +535,10 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     int knots = o.knots;
     if (knots <= 0) {
       const int most = static_cast<int>(poses.size()) - 2;
+      const double tolerance =
+          static_cast<int>(poses.size()) > kScoredIntervals + 1 ? kDenseKnotTolerancePx : 0;
       const KnotChoice choice = knotsByLeaveOneOut(o.trajectory, kMinKnots, most, t0, t1, poses,
-                                                   imageMotionError(camera));
+                                                   imageMotionError(camera), {}, tolerance);
       knots = choice.knots;
       for (size_t i = 0; i < choice.held_out_rms.size(); ++i)
         result.parameters["knots_held_out_" + std::to_string(kMinKnots + i)] =

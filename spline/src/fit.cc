@@ -106,7 +106,8 @@ Trajectory fitTrajectory(TrajectoryKind kind, int knots, int64_t t_begin_us, int
 
 KnotChoice knotsByLeaveOneOut(TrajectoryKind kind, int min_knots, int max_knots, int64_t t_begin_us,
                               int64_t t_end_us, const std::vector<StampedPose>& poses,
-                              const HeldOutError& error, const FitOptions& options) {
+                              const HeldOutError& error, const FitOptions& options,
+                              double rms_tolerance) {
   KnotChoice out;
   min_knots = std::max(min_knots, Trajectory::minimumKnots(kind));
   out.knots = min_knots;
@@ -135,11 +136,12 @@ KnotChoice knotsByLeaveOneOut(TrajectoryKind kind, int min_knots, int max_knots,
   }
   // The one-standard-error rule (Hastie, Tibshirani, Friedman, "The Elements of Statistical
   // Learning", 2nd ed., 2009, section 7.10): the fewest knots whose mean error is within one
-  // standard error of the least.
+  // standard error of the least, or with an RMS within rms_tolerance of the least's.
   const size_t least =
       static_cast<size_t>(std::min_element(means.begin(), means.end()) - means.begin());
+  const double tolerated = std::pow(std::sqrt(means[least]) + rms_tolerance, 2);
   for (size_t i = 0; i < means.size(); ++i) {
-    if (means[i] <= means[least] + standard_errors[least]) {
+    if (means[i] <= std::max(means[least] + standard_errors[least], tolerated)) {
       out.knots = min_knots + static_cast<int>(i);
       break;
     }

@@ -113,6 +113,50 @@ TEST(Fit, LeaveOneOutTakesTheKnotsAMotionThatTurnsNeeds) {
             4);
 }
 
+// Seventeen poses whose errors are correlated between neighbours (a random walk outwards from the
+// middle, as chained flows give): the folds' neighbours carry the left-out pose's error, the
+// standard error understates the spread and the one-standard-error rule takes more knots than a
+// smooth segment needs. A tolerance on the held-out RMS takes the fewest within it: 4 there, and
+// still 8 for a motion that turns four times, whose counts differ by far more.
+TEST(Fit, ATolerancePutsBackTheFewestKnotsWhereTheFoldsAreCorrelated) {
+  const auto knots = [](int n, double turn) {
+    std::vector<SE3> out;
+    for (int k = 0; k < n; ++k) {
+      const double a = 0.01 * k + turn * ((k % 2) ? 1 : -1);
+      out.emplace_back(expSO3(Vector3(0.3 * a, a, 0.1 * a)), Vector3(0.5 * a, -0.2 * a, 0));
+    }
+    return out;
+  };
+  std::mt19937 rng(5);
+  std::normal_distribution<double> noise(0.0, 4e-4);
+  const auto walked = [&](const Trajectory& truth) {
+    std::vector<StampedPose> poses = sample(truth, 17);
+    const size_t mid = poses.size() / 2;
+    for (const int step : {-1, 1}) {
+      SE3 drift;
+      for (size_t k = mid + step; k < poses.size(); k += step) {
+        drift = drift * SE3(expSO3(Vector3(noise(rng), noise(rng), noise(rng))),
+                            Vector3(noise(rng), noise(rng), noise(rng)));
+        poses[k].pose = poses[k].pose * drift;
+        if (k == 0) break;
+      }
+    }
+    return poses;
+  };
+  const TrajectoryKind cubic = TrajectoryKind::kCubicSE3;
+  int more_without = 0;
+  for (int draw = 0; draw < 5; ++draw) {
+    const std::vector<StampedPose> smooth = walked(Trajectory(cubic, kT0, kT1, knots(4, 0)));
+    more_without += knotsByLeaveOneOut(cubic, 4, 15, kT0, kT1, smooth).knots > 4 ? 1 : 0;
+    EXPECT_EQ(knotsByLeaveOneOut(cubic, 4, 15, kT0, kT1, smooth, {}, {}, 2e-3).knots, 4)
+        << "draw " << draw;
+    const std::vector<StampedPose> turning = walked(Trajectory(cubic, kT0, kT1, knots(8, 0.02)));
+    EXPECT_EQ(knotsByLeaveOneOut(cubic, 4, 15, kT0, kT1, turning, {}, {}, 2e-3).knots, 8)
+        << "draw " << draw;
+  }
+  EXPECT_GE(more_without, 2) << "the correlated folds without the tolerance";
+}
+
 TEST(Metrics, AlignmentRemovesSimilaritiesAndReportsWhatRemains) {
   const Trajectory truth_traj(TrajectoryKind::kCubicSE3, kT0, kT1, wobblyKnots(6));
   std::vector<SE3> truth, est;

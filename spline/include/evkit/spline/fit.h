@@ -43,6 +43,8 @@ Trajectory fitTrajectory(TrajectoryKind kind, int knots, int64_t t_begin_us, int
 // that turns within the interval needs more knots than one cubic segment; where it does not, more
 // knots fit the poses' noise. `error`: the squared error of a prediction against the pose left out
 // (none: the weighted log residual of the fit). Counts above poses - 1 are not tried.
+// `rms_tolerance` (the error's square-root units, 0: none): a count whose held-out RMS is within
+// this of the least's qualifies too, for differences too small to matter to the caller.
 using HeldOutError = std::function<double(const SE3& predicted, const SE3& pose)>;
 struct KnotChoice {
   int knots = 0;
@@ -50,7 +52,8 @@ struct KnotChoice {
 };
 KnotChoice knotsByLeaveOneOut(TrajectoryKind kind, int min_knots, int max_knots, int64_t t_begin_us,
                               int64_t t_end_us, const std::vector<StampedPose>& poses,
-                              const HeldOutError& error = {}, const FitOptions& options = {});
+                              const HeldOutError& error = {}, const FitOptions& options = {},
+                              double rms_tolerance = 0);
 
 enum class Alignment { kNone, kSE3, kSim3 };
 
