@@ -64,19 +64,22 @@ TEST(Fit, ApproximatesAMotionOfAnotherFamily) {
   EXPECT_LT(compareTrajectories(est, truth, Alignment::kNone).ate_rmse, 1e-3);
 }
 
+// n knots that rise slowly, alternating by `turn` about the rise: each pair of knots turns the
+// motion once (turn 0: one smooth drift).
+std::vector<SE3> turningKnots(int n, double turn) {
+  std::vector<SE3> out;
+  for (int k = 0; k < n; ++k) {
+    const double a = 0.01 * k + turn * ((k % 2) ? 1 : -1);
+    out.emplace_back(expSO3(Vector3(0.3 * a, a, 0.1 * a)), Vector3(0.5 * a, -0.2 * a, 0));
+  }
+  return out;
+}
+
 // Nine noisy poses over the interval, as the pixel grid registers them: from one smooth cubic
 // segment (4 knots) the count chosen is 4 on every draw; from a motion that turns twice (6 knots)
 // it is 6, where 4 knots predict the poses left out several times worse. A given error measure
 // (here the rotation's angle alone) is the one used.
 TEST(Fit, LeaveOneOutTakesTheKnotsAMotionThatTurnsNeeds) {
-  const auto knots = [](int n, double turn) {
-    std::vector<SE3> out;
-    for (int k = 0; k < n; ++k) {
-      const double a = 0.01 * k + turn * ((k % 2) ? 1 : -1);
-      out.emplace_back(expSO3(Vector3(0.3 * a, a, 0.1 * a)), Vector3(0.5 * a, -0.2 * a, 0));
-    }
-    return out;
-  };
   std::mt19937 rng(3);
   std::normal_distribution<double> noise(0.0, 3e-4);
   const auto noisy = [&](const Trajectory& truth) {
@@ -89,12 +92,12 @@ TEST(Fit, LeaveOneOutTakesTheKnotsAMotionThatTurnsNeeds) {
   };
   const TrajectoryKind cubic = TrajectoryKind::kCubicSE3;
   for (int draw = 0; draw < 5; ++draw) {
-    const KnotChoice smooth =
-        knotsByLeaveOneOut(cubic, 4, 7, kT0, kT1, noisy(Trajectory(cubic, kT0, kT1, knots(4, 0))));
+    const KnotChoice smooth = knotsByLeaveOneOut(
+        cubic, 4, 7, kT0, kT1, noisy(Trajectory(cubic, kT0, kT1, turningKnots(4, 0))));
     EXPECT_EQ(smooth.knots, 4) << "draw " << draw;
     ASSERT_EQ(smooth.held_out_rms.size(), 4u);
     const KnotChoice turning = knotsByLeaveOneOut(
-        cubic, 4, 7, kT0, kT1, noisy(Trajectory(cubic, kT0, kT1, knots(6, 0.02))));
+        cubic, 4, 7, kT0, kT1, noisy(Trajectory(cubic, kT0, kT1, turningKnots(6, 0.02))));
     EXPECT_EQ(turning.knots, 6) << "draw " << draw;
     EXPECT_GT(turning.held_out_rms[0], 3 * turning.held_out_rms[2]) << "draw " << draw;
   }
@@ -103,12 +106,12 @@ TEST(Fit, LeaveOneOutTakesTheKnotsAMotionThatTurnsNeeds) {
     return logSO3(a.rotation().conjugate() * b.rotation()).squaredNorm();
   };
   const KnotChoice by_angle = knotsByLeaveOneOut(
-      cubic, 4, 7, kT0, kT1, noisy(Trajectory(cubic, kT0, kT1, knots(6, 0.02))), angle);
+      cubic, 4, 7, kT0, kT1, noisy(Trajectory(cubic, kT0, kT1, turningKnots(6, 0.02))), angle);
   EXPECT_EQ(by_angle.knots, 6);
   EXPECT_LT(by_angle.held_out_rms[2], 2e-3);
   // Fewer than three poses, or no room above the fewest knots: the fewest.
   EXPECT_EQ(knotsByLeaveOneOut(cubic, 4, 7, kT0, kT1,
-                               sample(Trajectory(cubic, kT0, kT1, knots(6, 0.02)), 5))
+                               sample(Trajectory(cubic, kT0, kT1, turningKnots(6, 0.02)), 5))
                 .knots,
             4);
 }
@@ -119,14 +122,6 @@ TEST(Fit, LeaveOneOutTakesTheKnotsAMotionThatTurnsNeeds) {
 // smooth segment needs. A tolerance on the held-out RMS takes the fewest within it: 4 there, and
 // still 8 for a motion that turns four times, whose counts differ by far more.
 TEST(Fit, ATolerancePutsBackTheFewestKnotsWhereTheFoldsAreCorrelated) {
-  const auto knots = [](int n, double turn) {
-    std::vector<SE3> out;
-    for (int k = 0; k < n; ++k) {
-      const double a = 0.01 * k + turn * ((k % 2) ? 1 : -1);
-      out.emplace_back(expSO3(Vector3(0.3 * a, a, 0.1 * a)), Vector3(0.5 * a, -0.2 * a, 0));
-    }
-    return out;
-  };
   std::mt19937 rng(5);
   std::normal_distribution<double> noise(0.0, 4e-4);
   const auto walked = [&](const Trajectory& truth) {
@@ -146,11 +141,12 @@ TEST(Fit, ATolerancePutsBackTheFewestKnotsWhereTheFoldsAreCorrelated) {
   const TrajectoryKind cubic = TrajectoryKind::kCubicSE3;
   int more_without = 0;
   for (int draw = 0; draw < 5; ++draw) {
-    const std::vector<StampedPose> smooth = walked(Trajectory(cubic, kT0, kT1, knots(4, 0)));
+    const std::vector<StampedPose> smooth = walked(Trajectory(cubic, kT0, kT1, turningKnots(4, 0)));
     more_without += knotsByLeaveOneOut(cubic, 4, 15, kT0, kT1, smooth).knots > 4 ? 1 : 0;
     EXPECT_EQ(knotsByLeaveOneOut(cubic, 4, 15, kT0, kT1, smooth, {}, {}, 2e-3).knots, 4)
         << "draw " << draw;
-    const std::vector<StampedPose> turning = walked(Trajectory(cubic, kT0, kT1, knots(8, 0.02)));
+    const std::vector<StampedPose> turning =
+        walked(Trajectory(cubic, kT0, kT1, turningKnots(8, 0.02)));
     EXPECT_EQ(knotsByLeaveOneOut(cubic, 4, 15, kT0, kT1, turning, {}, {}, 2e-3).knots, 8)
         << "draw " << draw;
   }
