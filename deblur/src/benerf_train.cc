@@ -590,13 +590,12 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   }
   result.parameters["motion_from_frames"] = 1;
   Trajectory motion = fit(registered.poses);
-  // A motion that turns more than nine poses can follow: where they call for kTurningKnots or
-  // more, it is registered again at kTrajectoryIntervals + 1 times and the count chosen from
-  // those. Not everywhere: from seventeen poses the rule also took 6-10 knots on smooth shakes
-  // (the registration's noise), ground_blur15 43.03 -> 42.02 dB.
+  // A motion that turns more than the nine poses registered so far can follow: where they call for
+  // kTurningKnots or more, it is registered again at kTrajectoryIntervals + 1 times and the count
+  // chosen from those. Not everywhere: measured before kDenseKnotTolerancePx, the rule then took
+  // 6-10 knots on smooth shakes (the registration's noise), ground_blur15 43.03 -> 42.02 dB.
   result.parameters["registered_times"] = static_cast<double>(registered.poses.size());
-  if (o.knots <= 0 && static_cast<int>(motion.knots().size()) >= kTurningKnots &&
-      static_cast<int>(registered.poses.size()) < kTrajectoryIntervals + 1) {
+  if (o.knots <= 0 && static_cast<int>(motion.knots().size()) >= kTurningKnots) {
     const auto dense_start = Clock::now();
     ExposureMotion dense =
         motionFromLatentFrames(given, camera, contrast, o.log, true, kTrajectoryIntervals);

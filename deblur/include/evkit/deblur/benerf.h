@@ -284,12 +284,12 @@ struct ExposureMotion {
 // depths put it (the image motion nearly alike, the split between rotation and translation less
 // right; about 0.5 s less), for registrations that are only scored. `intervals`: the exposure is
 // cut into that many (even, 2-64), EDI's latent frame is made at each end and the motion
-// registered there: kScoredIntervals where a registration is only scored (the contrast's search),
-// kTrajectoryIntervals for the one that the trajectory is fitted to. Eight intervals cost half as
-// much, and nine poses determine a spline of at most 7 knots with one pose left out and another to
-// spare; a shake that turns four times within the exposure (8 knots) needs more: on one at 30 px
-// the pixel grid got 23.05 dB from nine poses and 34.71 from seventeen (EDI 31.91; BENCHMARKS.md,
-// "A motion that turns").
+// registered there: kScoredIntervals (the default, half the cost) for the contrast's search and the
+// first registration, kTrajectoryIntervals where those nine poses are too few for the trajectory.
+// Nine poses determine a spline of at most 7 knots with one pose left out and another to spare; a
+// shake that turns four times within the exposure (8 knots) needs more: on one at 30 px the pixel
+// grid got 23.05 dB from nine poses and 34.71 from seventeen (EDI 31.91; BENCHMARKS.md, "A motion
+// that turns").
 inline constexpr int kScoredIntervals = 8, kTrajectoryIntervals = 16;
 ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamera& camera,
                                       const std::optional<Contrast>& contrast,
