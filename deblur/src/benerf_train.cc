@@ -9,6 +9,8 @@
 #include <cstdio>
 #include <limits>
 #include <numbers>
+#include <opencv2/imgproc.hpp>
+#include <vector>
 
 #include "benerf_checkpoint.h"
 #include "benerf_common.h"
@@ -698,11 +700,41 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   return true;
 }
 
+// A colour frame whose three channels are the same carries no colour: a grey scene, or a grey
+// camera's frames stored as RGB. Deblurred in colour, its chroma would be held by the blur term
+// alone, and where the events and the blur disagree (a near object's edges) the grey's weights
+// would split the difference among the channels, green the most: fringes of green and purple that
+// a grey frame cannot have (BENCHMARKS.md, "A grey frame in three channels").
+bool greyInColour(const cv::Mat& image) {
+  if (image.channels() != 3) return false;
+  std::vector<cv::Mat> channels;
+  cv::split(image, channels);
+  return cv::countNonZero(channels[0] != channels[1]) == 0 &&
+         cv::countNonZero(channels[0] != channels[2]) == 0;
+}
+
+// The observation with its frames in one channel: the blurry frame's first (all three are the
+// same) and the ground truth's grey.
+Observation asGrey(const Observation& given) {
+  Observation grey = given;
+  cv::extractChannel(given.blurry.image, grey.blurry.image, 0);
+  for (Frame& g : grey.gt_frames)
+    if (g.image.channels() == 3) cv::cvtColor(g.image, g.image, cv::COLOR_BGR2GRAY);
+  return grey;
+}
+
 }  // namespace
 
 DeblurResult BenerfDeblurrer::run(const Observation& given, const DeblurRequest& request) {
+  if (greyInColour(given.blurry.image)) {
+    DeblurResult result = run(asGrey(given), request);
+    for (Frame& f : result.frames) cv::merge(std::vector<cv::Mat>(3, f.image), f.image);
+    result.parameters["frame_grey"] = 1;
+    return result;
+  }
   const auto start = Clock::now();
   DeblurResult result;
+  result.parameters["frame_grey"] = 0;
   const ThreadScope threads(options_.threads);
   Start s = prepare(given, options_, result);
   const BenerfOptions& o = s.options;

@@ -1026,6 +1026,28 @@ TEST(Benerf, PixelGridRegistersAMotionThatTurnsFourTimesAtMoreTimes) {
         << intervals;
 }
 
+// A colour frame whose three channels are the same (a grey scene, or a grey camera's frames stored
+// as RGB) is deblurred as grey: in colour the events' grey weighs green the most, and where they
+// and the blur disagree the difference went into the chroma, fringes a grey frame cannot have
+// (measured on text at 120 x 90, 15 px, deblurred in colour: 29.58 dB, its chroma 39.18 dB off the
+// truth's none, its brightness 30.09; as grey 30.39). The frames come back in three channels, each
+// the grey run's.
+TEST(Benerf, AGreyFrameInThreeChannelsIsDeblurredAsGrey) {
+  const Observation grey = presetObservation("text", 15);
+  Observation colour = grey;
+  cv::merge(std::vector<cv::Mat>(3, grey.blurry.image), colour.blurry.image);
+  for (Frame& g : colour.gt_frames) cv::merge(std::vector<cv::Mat>(3, g.image), g.image);
+  const DeblurRequest request{{grey.blurry.midExposure()}, {}};
+  const DeblurResult a = BenerfDeblurrer(benerfBudget("fast")).run(grey, request);
+  const DeblurResult b = BenerfDeblurrer(benerfBudget("fast")).run(colour, request);
+  EXPECT_EQ(a.parameters.at("frame_grey"), 0.0);
+  EXPECT_EQ(b.parameters.at("frame_grey"), 1.0);
+  ASSERT_EQ(b.frames[0].image.type(), CV_32FC3);
+  std::vector<cv::Mat> channels;
+  cv::split(b.frames[0].image, channels);
+  for (const cv::Mat& c : channels) EXPECT_EQ(cv::norm(c, a.frames[0].image, cv::NORM_INF), 0.0);
+}
+
 // At 2 px of blur the grid's model (cells sampled bilinearly at the views' positions) misses the
 // blurry frame by more than half of what deblurring changes: the blur term would fit the model's
 // own error (on the hard suite's 2 px scene the solve fell from EDI's 40.3 dB to 34.8). The grid
