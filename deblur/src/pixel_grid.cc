@@ -760,6 +760,31 @@ double PixelGridProblem::heldOutEventTerm(const std::vector<double>& u) const {
   return held ? sum / (static_cast<double>(held) * V) : 0.0;
 }
 
+cv::Mat PixelGridProblem::blurResiduals(const std::vector<double>& u) const {
+  const std::vector<double> x = intensities(u);
+  const int W = camera_.width, H = camera_.height, C = channels_, V = views_;
+  const size_t N = directions_.size();
+  cv::Mat out(H, W, CV_64F);
+#pragma omp parallel for schedule(static)
+  for (int y = 0; y < H; ++y) {
+    for (int px = 0; px < W; ++px) {
+      const size_t pixel = static_cast<size_t>(y) * W + px;
+      double sum[3] = {0, 0, 0}, value[3];
+      for (int k = 0; k < V; ++k) {
+        sample(x.data(), canvas_w_, C, taps_[static_cast<size_t>(k) * N + pixel], value);
+        for (int c = 0; c < C; ++c) sum[c] += value[c];
+      }
+      double squares = 0;
+      for (int c = 0; c < C; ++c) {
+        const double r = blurResidual(sum[c] / V, blurry_.ptr<float>(y)[px * C + c]);
+        squares += r * r;
+      }
+      out.at<double>(y, px) = squares;
+    }
+  }
+  return out;
+}
+
 void PixelGridProblem::setMotion(const Trajectory& motion) {
   motion_ = motion;
   buildTaps();

@@ -112,6 +112,9 @@ class PixelGridProblem {
   // The mean penalty of the held-out pixels' comparisons with mid-exposure (the event term's
   // first part, unweighted); 0 when none are held out.
   double heldOutEventTerm(const std::vector<double>& u) const;
+  // Each pixel's share of the blur term, unweighted: the squared residuals of its channels, summed
+  // (float64, the frame's size).
+  cv::Mat blurResiduals(const std::vector<double>& u) const;
   // The image the camera sees at time t.
   cv::Mat render(const std::vector<double>& x, int64_t t_us) const;
 
