@@ -10,6 +10,7 @@
 #include <utility>
 
 #include "evkit/deblur/edi.h"
+#include "evkit/events/event_store.h"
 #include "evkit/events/filters.h"
 
 namespace evkit::benerf_detail {
