@@ -10,6 +10,7 @@
 #include <utility>
 
 #include "evkit/deblur/edi.h"
+#include "evkit/events/accumulate.h"
 #include "evkit/events/event_store.h"
 #include "evkit/events/filters.h"
 
@@ -25,16 +26,16 @@ double vertexShift(double a, double b, double c, double h) {
   return std::isfinite(curvature) && curvature > 0 ? 0.5 * h * (a - c) / curvature : 0.0;
 }
 
-// How many events each pixel saw over the exposure (float64, the frame's size).
+// How many events each pixel saw over the exposure (float64, the frame's size; events outside it
+// are not counted).
 cv::Mat exposureEventCounts(const Observation& obs) {
   const Frame& blurry = obs.blurry;
-  cv::Mat counts = cv::Mat::zeros(blurry.image.rows, blurry.image.cols, CV_64F);
-  const EventSpan span = obs.events.sliceTime(blurry.exposure_start_us, blurry.exposure_end_us);
-  for (size_t i = 0; i < span.size(); ++i) {
-    const int x = span.x[i], y = span.y[i];
-    if (x < counts.cols && y < counts.rows) counts.at<double>(y, x) += 1;
-  }
-  return counts;
+  EventSpan span = obs.events.sliceTime(blurry.exposure_start_us, blurry.exposure_end_us);
+  span.sensor = {blurry.image.cols, blurry.image.rows};
+  const PolarityCounts counts = accumulateCounts(span);
+  cv::Mat both;
+  cv::add(counts.on, counts.off, both, cv::noArray(), CV_64F);
+  return both;
 }
 
 // The views of the search for c's grids (contrastFromMotion, contrastFromSolves): the blur
