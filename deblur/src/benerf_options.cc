@@ -186,6 +186,9 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
                 "chosen by held-out events)")
         .number("chroma_smooth", &O::chroma_smooth, {0},
                 "the pixel grid's smoothness of the chroma between neighbouring cells (colour)")
+        .number("hysteresis", &O::hysteresis, {0, 1},
+                "the pixel grid's events against the sensor's reference level, which trails the "
+                "log level by this many thresholds (0: the level itself)")
         .flag("calibrate", &O::calibrate,
               "without a calibration (no calib.txt), estimate the lens's radial distortion k1 "
               "from the registered motion")

@@ -557,6 +557,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   po.subdivision = o.cells;
   po.event_window = o.alpha;
   po.chroma_smoothness = o.chroma_smooth;
+  po.hysteresis = o.hysteresis;
   if (o.smooth > 0) po.smoothness = o.smooth;
   po.max_views = std::max(po.min_views, o.max_views);
   if (o.virtual_views > 0) po.min_views = po.max_views = o.virtual_views;

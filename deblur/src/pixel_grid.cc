@@ -133,6 +133,33 @@ double PixelGridProblem::eventPenalty(double r, double* weight) const {
   return 2 * d * d * (root - 1);
 }
 
+void PixelGridProblem::referenceLevels(const double* logs, double mid_log, double* reference,
+                                       int* source) const {
+  const int V = views_;
+  const bool play = band_up_ > 0 || band_down_ > 0;
+  // The s-th sample in time order: the views before mid-exposure, mid (index V), the views after.
+  const auto at = [&](int s) { return s < mid_slot_ ? s : s == mid_slot_ ? V : s - 1; };
+  int previous = -1;
+  for (int s = 0; s <= V; ++s) {
+    const int i = at(s);
+    const double level = i == V ? mid_log : logs[i];
+    reference[i] = level;
+    source[i] = i;
+    if (play && previous >= 0) {
+      const double before = reference[previous];
+      if (before < level - band_up_) {
+        reference[i] = level - band_up_;
+      } else if (before > level + band_down_) {
+        reference[i] = level + band_down_;
+      } else {
+        reference[i] = before;
+        source[i] = source[previous];
+      }
+    }
+    previous = i;
+  }
+}
+
 double dimFrameWeight(const cv::Mat& blurry, double dim_frame) {
   const cv::Scalar mean = cv::mean(blurry);
   double brightness = 0;
@@ -171,6 +198,10 @@ PixelGridProblem::PixelGridProblem(const Observation& obs, const PinholeCamera& 
   for (int k = 0; k < views_; ++k) {
     times_us_.push_back(t0 + std::llround((k + 0.5) / views_ * static_cast<double>(t1 - t0)));
   }
+  mid_slot_ = static_cast<int>(
+      std::count_if(times_us_.begin(), times_us_.end(), [&](int64_t t) { return t < mid_us_; }));
+  band_up_ = std::max(0.0, options_.hysteresis) * contrast.on;
+  band_down_ = std::max(0.0, options_.hysteresis) * contrast.off;
 
   // The margin that holds what every view sees.
   double reach = 0;
@@ -330,7 +361,9 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
       g = &mine;
     }
     std::vector<double> colour(static_cast<size_t>(V) * C), d_grey(static_cast<size_t>(V)),
-        logs(static_cast<size_t>(V)), greys(static_cast<size_t>(V));
+        logs(static_cast<size_t>(V)), greys(static_cast<size_t>(V)),
+        reference(static_cast<size_t>(V) + 1), d_level(static_cast<size_t>(V) + 1);
+    std::vector<int> source(static_cast<size_t>(V) + 1);
 #pragma omp for schedule(static)
     for (int y = 0; y < H; ++y) {
       for (int px = 0; px < W; ++px) {
@@ -352,27 +385,36 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
           d_grey[ki] = 0;
         }
         // Each view against mid-exposure (robust), and each view `lag` views on against it
-        // (squares): the log change against the events in between (the change since mid
-        // telescopes).
+        // (squares): the change of the sensor's reference level against the events in between
+        // (the change since mid telescopes). Each reference is the log level of its source
+        // sample (index V: mid), which takes its gradient.
         const bool held = !held_out_.empty() && held_out_[pixel];
+        referenceLevels(logs.data(), mid_log, reference.data(), source.data());
+        std::fill(d_level.begin(), d_level.end(), 0.0);
+        const auto mid_source = static_cast<size_t>(source[static_cast<size_t>(V)]);
         for (int k = 0; k < V && !held; ++k) {
           const auto a = static_cast<size_t>(k);
-          const double r = logs[a] - mid_log - change_[a * N + pixel];
+          const double r =
+              reference[a] - reference[static_cast<size_t>(V)] - change_[a * N + pixel];
           double weight;
           event_sum += event_scale * eventPenalty(r, &weight);
           const double d = 2 * event_scale * weight * r;
-          d_grey[a] += d;
-          d_mid_log -= d;
+          d_level[static_cast<size_t>(source[a])] += d;
+          d_level[mid_source] -= d;
           if (lag == 0 || k + lag >= V) continue;
           const auto b = static_cast<size_t>(k + lag);
-          const double rw = logs[b] - change_[b * N + pixel] - (logs[a] - change_[a * N + pixel]);
+          const double rw =
+              reference[b] - change_[b * N + pixel] - (reference[a] - change_[a * N + pixel]);
           event_sum += window_scale * rw * rw;
           const double dw = 2 * window_scale * rw;
-          d_grey[b] += dw;
-          d_grey[a] -= dw;
+          d_level[static_cast<size_t>(source[b])] += dw;
+          d_level[static_cast<size_t>(source[a])] -= dw;
         }
-        for (int k = 0; k < V; ++k)
-          d_grey[static_cast<size_t>(k)] *= log.logSlope(greys[static_cast<size_t>(k)]);
+        d_mid_log = d_level[static_cast<size_t>(V)];
+        for (int k = 0; k < V; ++k) {
+          const auto a = static_cast<size_t>(k);
+          d_grey[a] = d_level[a] * log.logSlope(greys[a]);
+        }
         double d_sum[3] = {0, 0, 0};
         for (int c = 0; c < C; ++c) {
           const double r = blurResidual(sum[c] / V, blurry_.ptr<float>(y)[px * C + c]);
@@ -624,8 +666,17 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
     Eigen::MatrixXd& Hl = hessians[static_cast<size_t>(omp_get_thread_num())];
     Eigen::VectorXd& bl = gradients[static_cast<size_t>(omp_get_thread_num())];
     std::vector<Matrix6> He(static_cast<size_t>(V), Matrix6::Zero());  // event term, per view
+    // The event term's blocks between two views (a view's comparison whose mid-exposure reference
+    // comes from another view), [a * V + b] for a != b.
+    std::vector<Matrix6> cross;
     std::vector<Vector6> be(static_cast<size_t>(V), Vector6::Zero());
     std::array<Eigen::VectorXd, 3> jb;  // d (mean of the views) / d knots, per channel
+    // Per view: its log level and that level's derivative in its pose (0 where it is dark), and
+    // the sensor's reference levels (referenceLevels).
+    std::vector<Vector6> d_log(static_cast<size_t>(V));
+    std::vector<double> logs(static_cast<size_t>(V)), reference(static_cast<size_t>(V) + 1);
+    std::vector<int> source(static_cast<size_t>(V) + 1);
+    std::vector<uint8_t> lit(static_cast<size_t>(V));
 #pragma omp for schedule(static) nowait
     for (int y = 0; y < H; y += stride) {
       for (int px = 0; px < W; px += stride) {
@@ -666,16 +717,47 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
             }
           }
           const double grey = nerf::greyOf(value, C);
-          if (!(grey > 0)) continue;
-          const double r = log.logOf(grey) - mid_log - change_[static_cast<size_t>(k) * N + pixel];
+          lit[ki] = grey > 0;
+          logs[ki] = log.logOf(std::max(0.0, grey));
+          d_log[ki].setZero();
+          if (!lit[ki]) continue;
           const double slope = log.logSlope(grey);
-          const Vector6 g =
+          d_log[ki] =
               (slope * nerf::greyOf(du, C) * dq.row(0) + slope * nerf::greyOf(dv, C) * dq.row(1))
                   .transpose();
+        }
+        // Each view's comparison with mid-exposure moves with the pose of its reference's source
+        // view, less that of mid-exposure's reference's source (none where it is mid's own cell,
+        // which does not move): its derivative is a - b, a in the first view's block and b in the
+        // second's.
+        referenceLevels(logs.data(), mid_log, reference.data(), source.data());
+        const auto mid_from = static_cast<size_t>(source[static_cast<size_t>(V)]);
+        const bool mid_moves = mid_from != static_cast<size_t>(V);
+        const Vector6 b = mid_moves ? d_log[mid_from] : Vector6::Zero();
+        for (int k = 0; k < V; ++k) {
+          const auto ki = static_cast<size_t>(k);
+          const auto from = static_cast<size_t>(source[ki]);
+          if (!lit[ki]) continue;
+          const double r = reference[ki] - reference[static_cast<size_t>(V)] -
+                           change_[static_cast<size_t>(k) * N + pixel];
           double weight;
           eventPenalty(r, &weight);  // iteratively reweighted: the penalty's gradient is 2 w r
-          He[ki] += event_scale * weight * g * g.transpose();
-          be[ki] += event_scale * weight * g * r;
+          const double w = event_scale * weight;
+          const bool moves = from != static_cast<size_t>(V);
+          if (moves && mid_moves && from == mid_from) continue;  // a - b = 0
+          if (moves) {
+            const Vector6& a = d_log[from];
+            He[from] += w * a * a.transpose();
+            be[from] += w * r * a;
+          }
+          if (mid_moves) {
+            He[mid_from] += w * b * b.transpose();
+            be[mid_from] -= w * r * b;
+          }
+          if (moves && mid_moves) {
+            if (cross.empty()) cross.assign(static_cast<size_t>(V) * V, Matrix6::Zero());
+            cross[from * V + mid_from] -= w * d_log[from] * b.transpose();
+          }
         }
         for (int c = 0; c < C; ++c) {
           bool flat = false;
@@ -696,6 +778,21 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
         for (int b = 0; b < J.count; ++b) {
           Hl.block<6, 6>(ia, 6 * (J.first_knot + b)) +=
               Ja.transpose() * He[static_cast<size_t>(k)] * J.d_pose_d_knot[static_cast<size_t>(b)];
+        }
+      }
+    }
+    // The blocks between two views, and their transposes.
+    for (size_t pair = 0; pair < cross.size(); ++pair) {
+      const Matrix6& M = cross[pair];
+      if (M.isZero(0)) continue;
+      const KnotJacobians& J1 = jacobians[pair / static_cast<size_t>(V)];
+      const KnotJacobians& J2 = jacobians[pair % static_cast<size_t>(V)];
+      for (int a = 0; a < J1.count; ++a) {
+        for (int b = 0; b < J2.count; ++b) {
+          const Matrix6 block = J1.d_pose_d_knot[static_cast<size_t>(a)].transpose() * M *
+                                J2.d_pose_d_knot[static_cast<size_t>(b)];
+          Hl.block<6, 6>(6 * (J1.first_knot + a), 6 * (J2.first_knot + b)) += block;
+          Hl.block<6, 6>(6 * (J2.first_knot + b), 6 * (J1.first_knot + a)) += block.transpose();
         }
       }
     }
@@ -739,6 +836,8 @@ double PixelGridProblem::heldOutEventTerm(const std::vector<double>& u) const {
   const double sum = orderedSum(H, [&](std::ptrdiff_t row) {
     const int y = static_cast<int>(row);
     double row_sum = 0;
+    std::vector<double> logs(static_cast<size_t>(V)), reference(static_cast<size_t>(V) + 1);
+    std::vector<int> source(static_cast<size_t>(V) + 1);
     for (int px = 0; px < W; ++px) {
       const size_t pixel = static_cast<size_t>(y) * W + px;
       if (!held_out_[pixel]) continue;
@@ -748,7 +847,11 @@ double PixelGridProblem::heldOutEventTerm(const std::vector<double>& u) const {
       for (int k = 0; k < V; ++k) {
         double value[3];
         sample(x.data(), canvas_w_, C, taps_[static_cast<size_t>(k) * N + pixel], value);
-        const double r = log.logOf(std::max(0.0, nerf::greyOf(value, C))) - mid_log -
+        logs[static_cast<size_t>(k)] = log.logOf(std::max(0.0, nerf::greyOf(value, C)));
+      }
+      referenceLevels(logs.data(), mid_log, reference.data(), source.data());
+      for (int k = 0; k < V; ++k) {
+        const double r = reference[static_cast<size_t>(k)] - reference[static_cast<size_t>(V)] -
                          change_[static_cast<size_t>(k) * N + pixel];
         double weight;
         row_sum += eventPenalty(r, &weight);

@@ -75,6 +75,9 @@ struct BenerfOptions {
   // one (unchanged) by 0.5-1.6 dB; 0.1 and above lost again where the scene has strong colour
   // edges (the astronaut's suit, the motorcycle).
   double chroma_smooth = 0.03;
+  // The pixel grid compares the events with the sensor's reference level, which follows the log
+  // level with this much play in thresholds (PixelGridOptions::hysteresis; 0: the level itself).
+  double hysteresis = 0;
   // The pixel grid's smoothness of the log image (PixelGridOptions::smoothness). 0: chosen by the
   // events it was not fitted to. Its solve is run with the events of a quarter of the pixels held
   // out, at 0.01, 0.03 and 0.1 in turn while the held-out pixels' comparisons with mid-exposure

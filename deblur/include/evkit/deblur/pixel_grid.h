@@ -39,6 +39,16 @@ struct PixelGridOptions {
   // started); the short ones hold the local changes (BENCHMARKS.md, "The pixel grid").
   double event_window = 0;
   int motion_steps = 6;  // Levenberg-Marquardt steps on the motion before the image
+  // The events are compared with the sensor's reference level rather than the log level itself,
+  // when > 0. A DAVIS pixel fires when its log level has moved a threshold from the level of its
+  // last event, so its reference trails a rising level by up to C_on and a falling one by up to
+  // C_off, and a level that turns back within that band fires nothing: the events under-report
+  // every change that turns (a shake, texture passing by). Over the pixels' unknown offsets the
+  // expected reference follows the level with play: it stays put until the level is more than
+  // `hysteresis` C_on above it or `hysteresis` C_off below it, then trails it by that much
+  // (0.5: the mean of a uniform offset). The views and mid-exposure are its samples in time order;
+  // the first starts at its own level.
+  double hysteresis = 0;
   // A channel of the blurry frame at or above this (linear intensity) is taken as clipped by the
   // sensor: it says only that the exposure's mean reached the top, so a re-blur above it costs
   // nothing there (the blur term's residual is min(mean of the views, B) - B). 0 or below: every
@@ -137,6 +147,10 @@ class PixelGridProblem {
   // Every cell's intensity from its log value, and optionally each dI/du.
   std::vector<double> intensities(const std::vector<double>& u,
                                   std::vector<double>* slopes = nullptr) const;
+  // The sensor's reference level at each view and at mid-exposure (PixelGridOptions::hysteresis)
+  // from their log levels: reference[k] = logs[source[k]] + its offset, with index V for mid;
+  // without hysteresis the levels themselves.
+  void referenceLevels(const double* logs, double mid_log, double* reference, int* source) const;
   // The event term's penalty of a residual and its weight w (the penalty's derivative is 2 w r).
   double eventPenalty(double r, double* weight) const;  // from a log value, and dI/du
   // A mid-image coordinate on the canvas's cell grid.
@@ -160,6 +174,8 @@ class PixelGridProblem {
   std::vector<CanvasTaps> taps_;   // per view and pixel
   std::vector<float> change_;      // per view and pixel: the events' log change since mid-exposure
   std::vector<uint8_t> held_out_;  // per pixel, when some are held out (holdOutEvents)
+  double band_up_ = 0, band_down_ = 0;  // the reference's play (PixelGridOptions::hysteresis)
+  int mid_slot_ = 0;                    // mid-exposure's place among the views in time order
   cv::Mat blurry_;
 };
 
