@@ -135,28 +135,39 @@ double PixelGridProblem::eventPenalty(double r, double* weight) const {
 
 void PixelGridProblem::referenceLevels(const double* logs, double mid_log, double* reference,
                                        int* source) const {
-  const int V = views_;
-  const bool play = band_up_ > 0 || band_down_ > 0;
+  const int V = views_, M = referencePlays();
   // The s-th sample in time order: the views before mid-exposure, mid (index V), the views after.
   const auto at = [&](int s) { return s < mid_slot_ ? s : s == mid_slot_ ? V : s - 1; };
-  int previous = -1;
-  for (int s = 0; s <= V; ++s) {
-    const int i = at(s);
-    const double level = i == V ? mid_log : logs[i];
-    reference[i] = level;
-    source[i] = i;
-    if (play && previous >= 0) {
-      const double before = reference[previous];
-      if (before < level - band_up_) {
-        reference[i] = level - band_up_;
-      } else if (before > level + band_down_) {
-        reference[i] = level + band_down_;
+  const auto level = [&](int i) { return i == V ? mid_log : logs[i]; };
+  for (int i = 0; i <= V; ++i) reference[i] = 0;
+  for (int m = 0; m < M; ++m) {
+    // The play's start: the first sample's level less an offset at the midpoint of the m-th of M
+    // equal parts of the band [level - band_up_, level + band_down_].
+    const double part = (m + 0.5) / M;
+    int previous = -1;
+    double before = 0;
+    for (int s = 0; s <= V; ++s) {
+      const int i = at(s);
+      const double l = level(i);
+      int& from = source[static_cast<size_t>(i) * M + m];
+      double now;
+      if (previous < 0) {
+        now = M > 1 ? l - band_up_ + part * (band_up_ + band_down_) : l;
+        from = i;
+      } else if (before < l - band_up_) {
+        now = l - band_up_;
+        from = i;
+      } else if (before > l + band_down_) {
+        now = l + band_down_;
+        from = i;
       } else {
-        reference[i] = before;
-        source[i] = source[previous];
+        now = before;
+        from = source[static_cast<size_t>(previous) * M + m];
       }
+      reference[i] += now / M;
+      before = now;
+      previous = i;
     }
-    previous = i;
   }
 }
 
@@ -363,7 +374,13 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
     std::vector<double> colour(static_cast<size_t>(V) * C), d_grey(static_cast<size_t>(V)),
         logs(static_cast<size_t>(V)), greys(static_cast<size_t>(V)),
         reference(static_cast<size_t>(V) + 1), d_level(static_cast<size_t>(V) + 1);
-    std::vector<int> source(static_cast<size_t>(V) + 1);
+    const int M = referencePlays();
+    std::vector<int> source(static_cast<size_t>(V + 1) * M);
+    // d added to the level of every play's source of sample i, a share of 1 / M each.
+    const auto toSources = [&](int i, double d) {
+      for (int m = 0; m < M; ++m)
+        d_level[static_cast<size_t>(source[static_cast<size_t>(i) * M + m])] += d / M;
+    };
 #pragma omp for schedule(static)
     for (int y = 0; y < H; ++y) {
       for (int px = 0; px < W; ++px) {
@@ -386,12 +403,11 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
         }
         // Each view against mid-exposure (robust), and each view `lag` views on against it
         // (squares): the change of the sensor's reference level against the events in between
-        // (the change since mid telescopes). Each reference is the log level of its source
-        // sample (index V: mid), which takes its gradient.
+        // (the change since mid telescopes). Each reference is the mean of its plays' levels of
+        // their source samples (index V: mid), which take its gradient.
         const bool held = !held_out_.empty() && held_out_[pixel];
         referenceLevels(logs.data(), mid_log, reference.data(), source.data());
         std::fill(d_level.begin(), d_level.end(), 0.0);
-        const auto mid_source = static_cast<size_t>(source[static_cast<size_t>(V)]);
         for (int k = 0; k < V && !held; ++k) {
           const auto a = static_cast<size_t>(k);
           const double r =
@@ -399,16 +415,16 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
           double weight;
           event_sum += event_scale * eventPenalty(r, &weight);
           const double d = 2 * event_scale * weight * r;
-          d_level[static_cast<size_t>(source[a])] += d;
-          d_level[mid_source] -= d;
+          toSources(k, d);
+          toSources(V, -d);
           if (lag == 0 || k + lag >= V) continue;
           const auto b = static_cast<size_t>(k + lag);
           const double rw =
               reference[b] - change_[b * N + pixel] - (reference[a] - change_[a * N + pixel]);
           event_sum += window_scale * rw * rw;
           const double dw = 2 * window_scale * rw;
-          d_level[static_cast<size_t>(source[b])] += dw;
-          d_level[static_cast<size_t>(source[a])] -= dw;
+          toSources(k + lag, dw);
+          toSources(k, -dw);
         }
         d_mid_log = d_level[static_cast<size_t>(V)];
         for (int k = 0; k < V; ++k) {
@@ -675,8 +691,23 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
     // the sensor's reference levels (referenceLevels).
     std::vector<Vector6> d_log(static_cast<size_t>(V));
     std::vector<double> logs(static_cast<size_t>(V)), reference(static_cast<size_t>(V) + 1);
-    std::vector<int> source(static_cast<size_t>(V) + 1);
+    const int M = referencePlays();
+    std::vector<int> source(static_cast<size_t>(V + 1) * M);
     std::vector<uint8_t> lit(static_cast<size_t>(V));
+    // A comparison's derivative as views and their shares: sum of share * d_log[view].
+    std::vector<std::pair<int, double>> terms;
+    const auto addSources = [&](int i, double share) {
+      for (int m = 0; m < M; ++m) {
+        const int from = source[static_cast<size_t>(i) * M + m];
+        if (from == V) continue;  // mid-exposure's own cell does not move
+        auto same = std::find_if(terms.begin(), terms.end(),
+                                 [&](const auto& term) { return term.first == from; });
+        if (same == terms.end())
+          terms.emplace_back(from, share / M);
+        else
+          same->second += share / M;
+      }
+    };
 #pragma omp for schedule(static) nowait
     for (int y = 0; y < H; y += stride) {
       for (int px = 0; px < W; px += stride) {
@@ -726,37 +757,32 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
               (slope * nerf::greyOf(du, C) * dq.row(0) + slope * nerf::greyOf(dv, C) * dq.row(1))
                   .transpose();
         }
-        // Each view's comparison with mid-exposure moves with the pose of its reference's source
-        // view, less that of mid-exposure's reference's source (none where it is mid's own cell,
-        // which does not move): its derivative is a - b, a in the first view's block and b in the
-        // second's.
+        // Each view's comparison with mid-exposure moves with the poses of its reference's
+        // sources less those of mid-exposure's: its derivative is a sum over views of a share of
+        // each one's d_log, which gives the blocks of each view and of each pair of views.
         referenceLevels(logs.data(), mid_log, reference.data(), source.data());
-        const auto mid_from = static_cast<size_t>(source[static_cast<size_t>(V)]);
-        const bool mid_moves = mid_from != static_cast<size_t>(V);
-        const Vector6 b = mid_moves ? d_log[mid_from] : Vector6::Zero();
         for (int k = 0; k < V; ++k) {
           const auto ki = static_cast<size_t>(k);
-          const auto from = static_cast<size_t>(source[ki]);
           if (!lit[ki]) continue;
+          terms.clear();
+          addSources(k, 1.0);
+          addSources(V, -1.0);
           const double r = reference[ki] - reference[static_cast<size_t>(V)] -
                            change_[static_cast<size_t>(k) * N + pixel];
           double weight;
           eventPenalty(r, &weight);  // iteratively reweighted: the penalty's gradient is 2 w r
           const double w = event_scale * weight;
-          const bool moves = from != static_cast<size_t>(V);
-          if (moves && mid_moves && from == mid_from) continue;  // a - b = 0
-          if (moves) {
-            const Vector6& a = d_log[from];
-            He[from] += w * a * a.transpose();
-            be[from] += w * r * a;
-          }
-          if (mid_moves) {
-            He[mid_from] += w * b * b.transpose();
-            be[mid_from] -= w * r * b;
-          }
-          if (moves && mid_moves) {
-            if (cross.empty()) cross.assign(static_cast<size_t>(V) * V, Matrix6::Zero());
-            cross[from * V + mid_from] -= w * d_log[from] * b.transpose();
+          for (size_t p = 0; p < terms.size(); ++p) {
+            const auto v = static_cast<size_t>(terms[p].first);
+            const Vector6 a = terms[p].second * d_log[v];
+            if (a.isZero(0)) continue;
+            He[v] += w * a * a.transpose();
+            be[v] += w * a * r;
+            for (size_t q = p + 1; q < terms.size(); ++q) {
+              const auto u = static_cast<size_t>(terms[q].first);
+              if (cross.empty()) cross.assign(static_cast<size_t>(V) * V, Matrix6::Zero());
+              cross[v * V + u] += w * a * (terms[q].second * d_log[u]).transpose();
+            }
           }
         }
         for (int c = 0; c < C; ++c) {
@@ -783,13 +809,13 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
     }
     // The blocks between two views, and their transposes.
     for (size_t pair = 0; pair < cross.size(); ++pair) {
-      const Matrix6& M = cross[pair];
-      if (M.isZero(0)) continue;
+      const Matrix6& between = cross[pair];
+      if (between.isZero(0)) continue;
       const KnotJacobians& J1 = jacobians[pair / static_cast<size_t>(V)];
       const KnotJacobians& J2 = jacobians[pair % static_cast<size_t>(V)];
       for (int a = 0; a < J1.count; ++a) {
         for (int b = 0; b < J2.count; ++b) {
-          const Matrix6 block = J1.d_pose_d_knot[static_cast<size_t>(a)].transpose() * M *
+          const Matrix6 block = J1.d_pose_d_knot[static_cast<size_t>(a)].transpose() * between *
                                 J2.d_pose_d_knot[static_cast<size_t>(b)];
           Hl.block<6, 6>(6 * (J1.first_knot + a), 6 * (J2.first_knot + b)) += block;
           Hl.block<6, 6>(6 * (J2.first_knot + b), 6 * (J1.first_knot + a)) += block.transpose();
@@ -837,7 +863,7 @@ double PixelGridProblem::heldOutEventTerm(const std::vector<double>& u) const {
     const int y = static_cast<int>(row);
     double row_sum = 0;
     std::vector<double> logs(static_cast<size_t>(V)), reference(static_cast<size_t>(V) + 1);
-    std::vector<int> source(static_cast<size_t>(V) + 1);
+    std::vector<int> source(static_cast<size_t>(V + 1) * referencePlays());
     for (int px = 0; px < W; ++px) {
       const size_t pixel = static_cast<size_t>(y) * W + px;
       if (!held_out_[pixel]) continue;

@@ -830,8 +830,10 @@ TEST(PixelGrid, MotionGradientMatchesCentralDifferences) {
       const Eigen::Index n = analytic.size();
       ASSERT_EQ(n, 24);
       // 1e-6: a wider step straddles more of the bilinear samples' kinks, which the sensor's
-      // reference carries from one view into every later comparison.
-      const double h = 1e-6;
+      // reference carries from one view into every later comparison. The views' stencils hold
+      // their offsets in float, which rounds such a step's move (about 10^-5 px) by a few per
+      // cent, and the reference's four plays carry it into more comparisons: 5e-3 there.
+      const double h = 1e-6, tolerance = hysteresis > 0 ? 5e-3 : 2e-3;
       Eigen::VectorXd numeric(n);
       for (Eigen::Index i = 0; i < n; ++i) {
         Eigen::VectorXd step = Eigen::VectorXd::Zero(n);
@@ -850,7 +852,7 @@ TEST(PixelGrid, MotionGradientMatchesCentralDifferences) {
       const double scale = numeric.cwiseAbs().maxCoeff();
       ASSERT_GT(scale, 1e-8);
       for (Eigen::Index i = 0; i < n; ++i) {
-        EXPECT_LE(relativeError(analytic[i], numeric[i], scale), 2e-3)
+        EXPECT_LE(relativeError(analytic[i], numeric[i], scale), tolerance)
             << "knot value " << i << ": analytic " << analytic[i] << ", numeric " << numeric[i];
       }
     }

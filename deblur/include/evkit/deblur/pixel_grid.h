@@ -148,9 +148,12 @@ class PixelGridProblem {
   std::vector<double> intensities(const std::vector<double>& u,
                                   std::vector<double>* slopes = nullptr) const;
   // The sensor's reference level at each view and at mid-exposure (PixelGridOptions::hysteresis)
-  // from their log levels: reference[k] = logs[source[k]] + its offset, with index V for mid;
-  // without hysteresis the levels themselves.
+  // from their log levels, index V for mid: the mean of referencePlays() plays, each started at
+  // another offset within the band (the pixel's offset when the exposure opens is unknown), each
+  // the log level of its source sample source[k * plays + m] plus a constant; without hysteresis
+  // the levels themselves (one play, its own source).
   void referenceLevels(const double* logs, double mid_log, double* reference, int* source) const;
+  int referencePlays() const { return band_up_ > 0 || band_down_ > 0 ? 4 : 1; }
   // The event term's penalty of a residual and its weight w (the penalty's derivative is 2 w r).
   double eventPenalty(double r, double* weight) const;  // from a log value, and dI/du
   // A mid-image coordinate on the canvas's cell grid.
