@@ -373,14 +373,10 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
     }
     std::vector<double> colour(static_cast<size_t>(V) * C), d_grey(static_cast<size_t>(V)),
         logs(static_cast<size_t>(V)), greys(static_cast<size_t>(V)),
-        reference(static_cast<size_t>(V) + 1), d_level(static_cast<size_t>(V) + 1);
+        reference(static_cast<size_t>(V) + 1), d_reference(static_cast<size_t>(V) + 1),
+        d_level(static_cast<size_t>(V) + 1);
     const int M = referencePlays();
     std::vector<int> source(static_cast<size_t>(V + 1) * M);
-    // d added to the level of every play's source of sample i, a share of 1 / M each.
-    const auto toSources = [&](int i, double d) {
-      for (int m = 0; m < M; ++m)
-        d_level[static_cast<size_t>(source[static_cast<size_t>(i) * M + m])] += d / M;
-    };
 #pragma omp for schedule(static)
     for (int y = 0; y < H; ++y) {
       for (int px = 0; px < W; ++px) {
@@ -407,7 +403,7 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
         // their source samples (index V: mid), which take its gradient.
         const bool held = !held_out_.empty() && held_out_[pixel];
         referenceLevels(logs.data(), mid_log, reference.data(), source.data());
-        std::fill(d_level.begin(), d_level.end(), 0.0);
+        std::fill(d_reference.begin(), d_reference.end(), 0.0);
         for (int k = 0; k < V && !held; ++k) {
           const auto a = static_cast<size_t>(k);
           const double r =
@@ -415,16 +411,24 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
           double weight;
           event_sum += event_scale * eventPenalty(r, &weight);
           const double d = 2 * event_scale * weight * r;
-          toSources(k, d);
-          toSources(V, -d);
+          d_reference[a] += d;
+          d_reference[static_cast<size_t>(V)] -= d;
           if (lag == 0 || k + lag >= V) continue;
           const auto b = static_cast<size_t>(k + lag);
           const double rw =
               reference[b] - change_[b * N + pixel] - (reference[a] - change_[a * N + pixel]);
           event_sum += window_scale * rw * rw;
           const double dw = 2 * window_scale * rw;
-          toSources(k + lag, dw);
-          toSources(k, -dw);
+          d_reference[b] += dw;
+          d_reference[a] -= dw;
+        }
+        // Each reference's gradient to its plays' sources, a share of 1 / M each.
+        std::fill(d_level.begin(), d_level.end(), 0.0);
+        for (int i = 0; i <= V; ++i) {
+          for (int m = 0; m < M; ++m) {
+            d_level[static_cast<size_t>(source[static_cast<size_t>(i) * M + m])] +=
+                d_reference[static_cast<size_t>(i)] / M;
+          }
         }
         d_mid_log = d_level[static_cast<size_t>(V)];
         for (int k = 0; k < V; ++k) {

@@ -77,8 +77,8 @@ struct BenerfOptions {
   double chroma_smooth = 0.03;
   // The pixel grid compares the events with the sensor's reference level, which follows the log
   // level with this much play in thresholds (PixelGridOptions::hysteresis; 0: the level itself).
-  // The events over half the exposure count 0.81-0.98 of the true log change on the natural
-  // suite's noiseless scenes, 0.55-0.84 where they are as sparse as on a real DAVIS346. Measured
+  // The events over half the exposure count 0.80-0.98 of the true log change on the natural
+  // suite's noiseless scenes, 0.55-0.87 where they are as sparse as on a real DAVIS346. Measured
   // against the level at `fast` (BENCHMARKS.md, "The sensor's reference level"): natural suite
   // 35.71 -> 38.39 dB (every scene up, +0.38 to +5.07), standard 36.53 -> 36.76, hard 33.35 ->
   // 33.64; noisy 35.80 -> 35.70 (flat areas keep more of the events' noise).
