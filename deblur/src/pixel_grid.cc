@@ -386,7 +386,6 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
             (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
         const double mid_grey = std::max(0.0, nerf::greyOf(&x[mid], C));
         const double mid_log = log.logOf(mid_grey);
-        double d_mid_log = 0;
         double sum[3] = {0, 0, 0};
         for (int k = 0; k < V; ++k) {
           const auto ki = static_cast<size_t>(k);
@@ -395,7 +394,6 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
           for (int c = 0; c < C; ++c) sum[c] += out[c];
           greys[ki] = std::max(0.0, nerf::greyOf(out, C));
           logs[ki] = log.logOf(greys[ki]);
-          d_grey[ki] = 0;
         }
         // Each view against mid-exposure (robust), and each view `lag` views on against it
         // (squares): the change of the sensor's reference level against the events in between
@@ -430,7 +428,7 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
                 d_reference[static_cast<size_t>(i)] / M;
           }
         }
-        d_mid_log = d_level[static_cast<size_t>(V)];
+        const double d_mid_log = d_level[static_cast<size_t>(V)];
         for (int k = 0; k < V; ++k) {
           const auto a = static_cast<size_t>(k);
           d_grey[a] = d_level[a] * log.logSlope(greys[a]);
@@ -686,8 +684,8 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
     Eigen::MatrixXd& Hl = hessians[static_cast<size_t>(omp_get_thread_num())];
     Eigen::VectorXd& bl = gradients[static_cast<size_t>(omp_get_thread_num())];
     std::vector<Matrix6> He(static_cast<size_t>(V), Matrix6::Zero());  // event term, per view
-    // The event term's blocks between two views (a view's comparison whose mid-exposure reference
-    // comes from another view), [a * V + b] for a != b.
+    // The event term's blocks between two views (a comparison whose references come from more than
+    // one view), [a * V + b] for a != b.
     std::vector<Matrix6> cross;
     std::vector<Vector6> be(static_cast<size_t>(V), Vector6::Zero());
     std::array<Eigen::VectorXd, 3> jb;  // d (mean of the views) / d knots, per channel
