@@ -139,6 +139,13 @@ void PixelGridProblem::referenceLevels(const double* logs, double mid_log, doubl
   // The s-th sample in time order: the views before mid-exposure, mid (index V), the views after.
   const auto at = [&](int s) { return s < mid_slot_ ? s : s == mid_slot_ ? V : s - 1; };
   const auto level = [&](int i) { return i == V ? mid_log : logs[i]; };
+  if (M == 1) {  // no play: each sample's own level (a tie with the one before stays its own)
+    for (int i = 0; i <= V; ++i) {
+      reference[i] = level(i);
+      source[i] = i;
+    }
+    return;
+  }
   for (int i = 0; i <= V; ++i) reference[i] = 0;
   for (int m = 0; m < M; ++m) {
     // The play's start: the first sample's level less an offset at the midpoint of the m-th of M
@@ -152,7 +159,7 @@ void PixelGridProblem::referenceLevels(const double* logs, double mid_log, doubl
       int& from = source[static_cast<size_t>(i) * M + m];
       double now;
       if (previous < 0) {
-        now = M > 1 ? l - band_up_ + part * (band_up_ + band_down_) : l;
+        now = l - band_up_ + part * (band_up_ + band_down_);
         from = i;
       } else if (before < l - band_up_) {
         now = l - band_up_;

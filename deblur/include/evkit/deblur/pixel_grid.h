@@ -47,7 +47,8 @@ struct PixelGridOptions {
   // expected reference follows the level with play: it stays put until the level is more than
   // `hysteresis` C_on above it or `hysteresis` C_off below it, then trails it by that much
   // (0.5: the mean of a uniform offset). The views and mid-exposure are its samples in time order;
-  // the first starts at its own level.
+  // where in the band the first one starts is unknown, so the reference is the mean of four plays
+  // started at the midpoints of four equal parts of it.
   double hysteresis = 0;
   // A channel of the blurry frame at or above this (linear intensity) is taken as clipped by the
   // sensor: it says only that the exposure's mean reached the top, so a re-blur above it costs
