@@ -102,6 +102,9 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
         .number("converged", &O::converged, {0},
                 "the pixel grid stops once its loss fell by less than this fraction over its last "
                 "10 steps (fast: 3e-3, balanced: 1e-3, quality: 0, every step)")
+        .integer("motion_rounds", &O::motion_rounds, {0, 4},
+                 "the pixel grid refines the motion from its solved image and solves again, this "
+                 "many times")
         .integer("knots", &O::knots, {0},
                  "trajectory knots (0: the pixel grid's from its registered motion by "
                  "leave-one-out, 4 to 7 from 9 poses, to 15 from 17 for a motion that turns; the "

@@ -930,8 +930,8 @@ void PixelGridProblem::setMotion(const Trajectory& motion) {
 
 double PixelGridProblem::refineMotion(const std::vector<double>& u, int iterations) {
   // Levenberg-Marquardt on the knots with the image fixed, on every other row and column. Called
-  // before the image is solved for (EDI's frame), which has not yet taken up the motion's errors
-  // into its texture.
+  // before the image is solved for (EDI's frame, which has not yet taken up the motion's errors
+  // into its texture) and again after (BenerfOptions::motion_rounds).
   const std::vector<double> x = intensities(u);
   const Eigen::Index dim = 6 * static_cast<Eigen::Index>(motion_.knots().size());
   double loss = evaluate(u, nullptr);

@@ -980,6 +980,7 @@ TEST(Benerf, TheEventsAreReadAsTheSensorsReferenceLevel) {
   };
   const double level = eventTermAtTruth(0), reference = eventTermAtTruth(0.5);
   BenerfOptions o = benerfBudget("fast");
+  o.motion_rounds = 0;  // the motion refined from EDI's frame alone
   o.hysteresis = 0;
   const AtMidExposure as_level = benerfAndEdi(obs, o);
   o.hysteresis = 0.5;
@@ -988,6 +989,30 @@ TEST(Benerf, TheEventsAreReadAsTheSensorsReferenceLevel) {
   EXPECT_GT(as_reference.benerf_psnr, as_level.benerf_psnr + 2.0)
       << "EDI " << as_level.edi_psnr << " dB";
   EXPECT_GT(as_reference.benerf_psnr, as_reference.edi_psnr + 2.0);
+}
+
+// The motion refined again from the solved image (BenerfOptions::motion_rounds), on bricks before a
+// cat at half the suite's size, 15 px, rotation and translation in equal parts of the image motion,
+// a 30 ms pre-roll: the image motion closer to the truth and the frame sharper than with the
+// refinement from EDI's frame alone (measured 0.359 -> 0.297 px, 39.29 -> 39.73 dB; EDI 34.25).
+TEST(Benerf, TheMotionIsRefinedAgainFromTheSolvedImage) {
+  const auto natural = prerolledNatural("cat_bricks", 1, 15, 0.5, false);
+  if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
+  const Observation& obs = *natural;
+  const nerf::PinholeCamera camera = obs.camera.withSize(174, 130);
+  const auto motionError = [&](const DeblurResult& r) {
+    return exposureMotionErrorPx(r.trajectory.value(), r.disparity, obs.gt_poses, obs.gt_depth,
+                                 camera, obs.blurry.exposure_start_us, obs.blurry.exposure_end_us);
+  };
+  BenerfOptions o = benerfBudget("fast");
+  o.motion_rounds = 0;
+  const AtMidExposure once = benerfAndEdi(obs, o);
+  o.motion_rounds = 1;
+  const AtMidExposure again = benerfAndEdi(obs, o);
+  EXPECT_EQ(once.benerf.parameters.at("motion_rounds"), 0.0);
+  EXPECT_EQ(again.benerf.parameters.at("motion_rounds"), 1.0);
+  EXPECT_LT(motionError(again.benerf), 0.9 * motionError(once.benerf));
+  EXPECT_GT(again.benerf_psnr, once.benerf_psnr + 0.2);
 }
 
 // The default BeNeRF (the pixel grid on the registered motion) on natural scenes at half the
