@@ -124,7 +124,7 @@ struct BenerfOptions {
   // first refinement, from EDI's frame, leaves the motion short where EDI's frames are (the events
   // under-report small changes); from the solved image, read as the sensor's reference level, it
   // lengthens it. Measured at `fast` against 0 (BENCHMARKS.md, "The motion again from the solved
-  // image"): natural suite 38.39 -> 38.59 dB, every scene up, image motion error 0.54 -> 0.50 px.
+  // image"): natural suite 38.39 -> 38.59 dB (-0.05 to +0.79), image motion error 0.54 -> 0.50 px.
   int motion_rounds = 1;
   double knot_init = 0.01;  // knots start at exp(u), u uniform in [-knot_init, knot_init]^6
   // Where the trajectory starts. kIdentity: every knot near identity (the paper). kEvents: a
