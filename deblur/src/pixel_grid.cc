@@ -74,29 +74,36 @@ void sampleBackward(double* g, int width, int C, const Taps& t, const double* d)
   }
 }
 
-// Where pixel (x, y), ray direction d in the mid-exposure camera, is seen by the camera at `pose`:
-// its point at the mid frame's inverse depth there, then once more at the inverse depth where that
-// lands (the view and the mid frame see nearly the same point); rho_used: the second.
+// Where pixel (x, y), ray direction d in the mid-exposure camera, is seen by the camera at the pose
+// (R, t): its point at the mid frame's inverse depth there, then once more at the inverse depth
+// where that lands (the view and the mid frame see nearly the same point); rho_used: the second.
 Eigen::Vector2d reproject(const PinholeCamera& camera, const cv::Mat& inverse_depth, int x, int y,
-                          const Vector3& d, const SE3& pose, double* rho_used) {
-  const Vector3 Rd = pose.rotation().toRotationMatrix() * d;
+                          const Vector3& d, const Matrix3& R, const Vector3& t, double* rho_used) {
+  const Vector3 Rd = R * d;
   const auto rhoAt = [&](double u, double v) {
     const int col = std::clamp(static_cast<int>(std::lround(u)), 0, camera.width - 1),
               row = std::clamp(static_cast<int>(std::lround(v)), 0, camera.height - 1);
     return inverse_depth.empty() ? 0.0 : static_cast<double>(inverse_depth.at<float>(row, col));
   };
   double rho = rhoAt(x, y);
-  const Eigen::Vector2d q = nerf::projectPoint(camera, Rd + rho * pose.translation());
+  const Eigen::Vector2d q = nerf::projectPoint(camera, Rd + rho * t);
   rho = rhoAt(q.x(), q.y());
   if (rho_used) *rho_used = rho;
-  return nerf::projectPoint(camera, Rd + rho * pose.translation());
+  return nerf::projectPoint(camera, Rd + rho * t);
 }
 
 }  // namespace
 
 double PixelGridProblem::longestImagePath(const PinholeCamera& camera, const Trajectory& motion,
                                           const cv::Mat& inverse_depth, int64_t t0, int64_t t1) {
-  constexpr int kGrid = 16;
+  constexpr int kGrid = 16, kSteps = 32;
+  std::vector<Matrix3> rotations;
+  std::vector<Vector3> translations;
+  for (int k = 0; k <= kSteps; ++k) {
+    const SE3 pose = motion.poseAt(t0 + (t1 - t0) * k / kSteps);
+    rotations.push_back(pose.rotationMatrix());
+    translations.push_back(pose.translation());
+  }
   std::vector<double> paths;
   paths.reserve(kGrid * kGrid);
   for (int j = 0; j < kGrid; ++j) {
@@ -105,11 +112,11 @@ double PixelGridProblem::longestImagePath(const PinholeCamera& camera, const Tra
                 y = (2 * j + 1) * camera.height / (2 * kGrid);
       const Vector3 d = nerf::pixelDirection(camera, x, y);
       double path = 0;
-      Eigen::Vector2d last = reproject(camera, inverse_depth, x, y, d, motion.poseAt(t0), nullptr);
-      for (int k = 1; k <= 32; ++k) {
-        const Eigen::Vector2d q = reproject(camera, inverse_depth, x, y, d,
-                                            motion.poseAt(t0 + (t1 - t0) * k / 32), nullptr);
-        path += (q - last).norm();
+      Eigen::Vector2d last;
+      for (size_t k = 0; k < rotations.size(); ++k) {
+        const Eigen::Vector2d q =
+            reproject(camera, inverse_depth, x, y, d, rotations[k], translations[k], nullptr);
+        if (k > 0) path += (q - last).norm();
         last = q;
       }
       paths.push_back(path);
@@ -146,35 +153,69 @@ void PixelGridProblem::referenceLevels(const double* logs, double mid_log, doubl
     }
     return;
   }
-  for (int i = 0; i <= V; ++i) reference[i] = 0;
-  for (int m = 0; m < M; ++m) {
-    // The play's start: the first sample's level less an offset at the midpoint of the m-th of M
-    // equal parts of the band [level - band_up_, level + band_down_].
-    const double part = (m + 0.5) / M;
-    int previous = -1;
-    double before = 0;
-    for (int s = 0; s <= V; ++s) {
-      const int i = at(s);
-      const double l = level(i);
-      int& from = source[static_cast<size_t>(i) * M + m];
-      double now;
-      if (previous < 0) {
-        now = l - band_up_ + part * (band_up_ + band_down_);
-        from = i;
-      } else if (before < l - band_up_) {
-        now = l - band_up_;
-        from = i;
-      } else if (before > l + band_down_) {
-        now = l + band_down_;
-        from = i;
-      } else {
-        now = before;
-        from = source[static_cast<size_t>(previous) * M + m];
-      }
-      reference[i] += now / M;
-      before = now;
-      previous = i;
+  // The plays side by side, sample by sample (each sample's level and band read once).
+  double before[kReferencePlays];
+  int* from = source + static_cast<size_t>(at(0)) * M;
+  {
+    const int i = at(0);
+    const double l = level(i);
+    double sum = 0;
+    for (int m = 0; m < M; ++m) {
+      // The play's start: the first sample's level less an offset at the midpoint of the m-th of
+      // M equal parts of the band [level - band_up_, level + band_down_].
+      before[m] = l - band_up_ + (m + 0.5) / M * (band_up_ + band_down_);
+      from[m] = i;
+      sum += before[m];
     }
+    reference[i] = sum / M;
+  }
+  for (int s = 1; s <= V; ++s) {
+    const int i = at(s);
+    const double l = level(i), low = l - band_up_, high = l + band_down_;
+    int* const previous = from;
+    from = source + static_cast<size_t>(i) * M;
+    double sum = 0;
+    for (int m = 0; m < M; ++m) {
+      if (before[m] < low) {
+        before[m] = low;
+        from[m] = i;
+      } else if (before[m] > high) {
+        before[m] = high;
+        from[m] = i;
+      } else {
+        from[m] = previous[m];
+      }
+      sum += before[m];
+    }
+    reference[i] = sum / M;
+  }
+}
+
+void PixelGridProblem::referenceGradient(const double* d_reference, const int* source,
+                                         double* d_level) const {
+  const int V = views_, M = referencePlays();
+  if (M == 1) {
+    std::copy(d_reference, d_reference + V + 1, d_level);
+    return;
+  }
+  const auto at = [&](int s) { return s < mid_slot_ ? s : s == mid_slot_ ? V : s - 1; };
+  // A play holds its source's level over a run of samples in time order, the source first. From
+  // the last sample back, each sample's share is carried until its run's source, which takes it
+  // (no sample's level is written more than once).
+  double carry[kReferencePlays] = {};
+  for (int s = V; s >= 0; --s) {
+    const int i = at(s);
+    const double share = d_reference[i] / M;
+    const int* from = source + static_cast<size_t>(i) * M;
+    double own = 0;
+    for (int m = 0; m < M; ++m) {
+      carry[m] += share;
+      if (from[m] == i) {
+        own += carry[m];
+        carry[m] = 0;
+      }
+    }
+    d_level[i] = own;
   }
 }
 
@@ -225,10 +266,11 @@ PixelGridProblem::PixelGridProblem(const Observation& obs, const PinholeCamera& 
   double reach = 0;
   for (int k = 0; k < views_; ++k) {
     const SE3 pose = motion_.poseAt(times_us_[static_cast<size_t>(k)]);
+    const Matrix3 R = pose.rotationMatrix();
 #pragma omp parallel for reduction(max : reach) schedule(static)
     for (int y = 0; y < H; ++y) {
       for (int x = 0; x < W; ++x) {
-        const Eigen::Vector2d q = cellOf(x, y, pose);
+        const Eigen::Vector2d q = cellOf(x, y, R, pose.translation());
         reach = std::max(reach, std::max(std::abs(q.x() - x), std::abs(q.y() - y)));
       }
     }
@@ -253,9 +295,9 @@ PixelGridProblem::PixelGridProblem(const Observation& obs, const PinholeCamera& 
     for (int k = 0; k < views_; ++k) {
       const int64_t tk = times_us_[static_cast<size_t>(k)];
       if (ev.t[e] > mid_us_ && ev.t[e] <= tk)
-        change_[static_cast<size_t>(k) * directions_.size() + pixel] += step;
+        change_[viewSlot(k, pixel)] += step;
       else if (ev.t[e] <= mid_us_ && ev.t[e] > tk)
-        change_[static_cast<size_t>(k) * directions_.size() + pixel] -= step;
+        change_[viewSlot(k, pixel)] -= step;
     }
   }
 }
@@ -266,20 +308,22 @@ void PixelGridProblem::buildTaps() {
   taps_.resize(static_cast<size_t>(views_) * N);
   for (int k = 0; k < views_; ++k) {
     const SE3 pose = motion_.poseAt(times_us_[static_cast<size_t>(k)]);
+    const Matrix3 R = pose.rotationMatrix();
 #pragma omp parallel for schedule(static)
     for (int y = 0; y < H; ++y) {
       for (int x = 0; x < W; ++x) {
-        const Eigen::Vector2d q = cellOf(x, y, pose);
-        taps_[static_cast<size_t>(k) * N + static_cast<size_t>(y) * W + x] =
+        const Eigen::Vector2d q = cellOf(x, y, R, pose.translation());
+        taps_[viewSlot(k, static_cast<size_t>(y) * W + x)] =
             tapsAt(cellCoordinate(q.x()), cellCoordinate(q.y()), canvas_w_, canvas_h_);
       }
     }
   }
 }
 
-Eigen::Vector2d PixelGridProblem::cellOf(int x, int y, const SE3& pose, double* rho_used) const {
+Eigen::Vector2d PixelGridProblem::cellOf(int x, int y, const Matrix3& R, const Vector3& t,
+                                         double* rho_used) const {
   return reproject(camera_, inverse_depth_, x, y,
-                   directions_[static_cast<size_t>(y) * camera_.width + x], pose, rho_used);
+                   directions_[static_cast<size_t>(y) * camera_.width + x], R, t, rho_used);
 }
 
 double PixelGridProblem::intensityOf(double u, double* slope) const {
@@ -397,7 +441,7 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
         for (int k = 0; k < V; ++k) {
           const auto ki = static_cast<size_t>(k);
           double* out = &colour[ki * C];
-          sample(x.data(), canvas_w_, C, taps_[ki * N + pixel], out);
+          sample(x.data(), canvas_w_, C, taps_[viewSlot(k, pixel)], out);
           for (int c = 0; c < C; ++c) sum[c] += out[c];
           greys[ki] = std::max(0.0, nerf::greyOf(out, C));
           logs[ki] = log.logOf(greys[ki]);
@@ -412,7 +456,7 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
         for (int k = 0; k < V && !held; ++k) {
           const auto a = static_cast<size_t>(k);
           const double r =
-              reference[a] - reference[static_cast<size_t>(V)] - change_[a * N + pixel];
+              reference[a] - reference[static_cast<size_t>(V)] - change_[viewSlot(k, pixel)];
           double weight;
           event_sum += event_scale * eventPenalty(r, &weight);
           const double d = 2 * event_scale * weight * r;
@@ -420,21 +464,14 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
           d_reference[static_cast<size_t>(V)] -= d;
           if (lag == 0 || k + lag >= V) continue;
           const auto b = static_cast<size_t>(k + lag);
-          const double rw =
-              reference[b] - change_[b * N + pixel] - (reference[a] - change_[a * N + pixel]);
+          const double rw = reference[b] - change_[viewSlot(k + lag, pixel)] -
+                            (reference[a] - change_[viewSlot(k, pixel)]);
           event_sum += window_scale * rw * rw;
           const double dw = 2 * window_scale * rw;
           d_reference[b] += dw;
           d_reference[a] -= dw;
         }
-        // Each reference's gradient to its plays' sources, a share of 1 / M each.
-        std::fill(d_level.begin(), d_level.end(), 0.0);
-        for (int i = 0; i <= V; ++i) {
-          for (int m = 0; m < M; ++m) {
-            d_level[static_cast<size_t>(source[static_cast<size_t>(i) * M + m])] +=
-                d_reference[static_cast<size_t>(i)] / M;
-          }
-        }
+        referenceGradient(d_reference.data(), source.data(), d_level.data());
         const double d_mid_log = d_level[static_cast<size_t>(V)];
         for (int k = 0; k < V; ++k) {
           const auto a = static_cast<size_t>(k);
@@ -451,8 +488,7 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
         for (int k = 0; k < V; ++k) {
           nerf::greyBackward(d_grey[static_cast<size_t>(k)], C, d_colour);
           for (int c = 0; c < C; ++c) d_colour[c] += d_sum[c];
-          sampleBackward(g->data(), canvas_w_, C, taps_[static_cast<size_t>(k) * N + pixel],
-                         d_colour);
+          sampleBackward(g->data(), canvas_w_, C, taps_[viewSlot(k, pixel)], d_colour);
         }
         nerf::greyBackward(d_mid_log * log.logSlope(mid_grey), C, d_colour);
         for (int c = 0; c < C; ++c) (*g)[mid + c] += d_colour[c];
@@ -486,16 +522,18 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
   };
   const double smooth = orderedSum(canvas_h_, [&](std::ptrdiff_t j) {
     double smooth_row = 0;
-    double d_pair[3];
+    double d_pair[3], d_right[3] = {0, 0, 0},
+                      d_left[3] = {0, 0, 0};  // the pairs with the right and the left neighbour
     for (int i = 0; i < canvas_w_; ++i) {
       const size_t a = (static_cast<size_t>(j) * canvas_w_ + i) * C;
       double d_smooth[3] = {0, 0, 0};
       if (scale > 0 || chroma > 0) {
         // The right and lower neighbours' pairs (this row's share of the sum), and the left and
-        // upper ones' (their gradient reaches this cell too).
+        // upper ones' (their gradient reaches this cell too; the left one is the cell before's
+        // right one).
         if (i + 1 < canvas_w_) {
-          pair(a, a + C, d_pair, smooth_row);
-          for (int c = 0; c < C; ++c) d_smooth[c] -= d_pair[c];
+          pair(a, a + C, d_right, smooth_row);
+          for (int c = 0; c < C; ++c) d_smooth[c] -= d_right[c];
         }
         if (j + 1 < canvas_h_) {
           pair(a, a + row, d_pair, smooth_row);
@@ -503,9 +541,9 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
         }
         double unused = 0;
         if (i > 0) {
-          pair(a - C, a, d_pair, unused);
-          for (int c = 0; c < C; ++c) d_smooth[c] += d_pair[c];
+          for (int c = 0; c < C; ++c) d_smooth[c] += d_left[c];
         }
+        for (int c = 0; c < C; ++c) d_left[c] = d_right[c];
         if (j > 0) {
           pair(a - row, a, d_pair, unused);
           for (int c = 0; c < C; ++c) d_smooth[c] += d_pair[c];
@@ -541,7 +579,8 @@ int PixelGridProblem::solve(std::vector<double>& x, int iterations, Terms* terms
   int stored = 0, newest = -1;  // pairs held; the ring slot of the newest
   const auto slot = [&](int age) { return (newest - age + kMemory) % kMemory; };  // age 0: newest
   std::vector<double> g, g_new, q(x.size()), x_new(x.size());
-  double f = evaluate(x, &g);
+  Terms at_x, at_new;  // the loss's terms at x and at the line search's trial
+  double f = evaluate(x, &g, &at_x);
   std::vector<double> losses{f};  // after each step, the start's first
   int done = 0;
   for (; done < iterations && std::chrono::steady_clock::now() < deadline; ++done) {
@@ -618,7 +657,7 @@ int PixelGridProblem::solve(std::vector<double>& x, int iterations, Terms* terms
     for (int tries = 0; tries < 20; ++tries, step *= 0.5) {
 #pragma omp parallel for schedule(static)
       for (std::ptrdiff_t j = 0; j < n; ++j) x_new[j] = x[j] - step * q[j];
-      f_new = evaluate(x_new, &g_new);
+      f_new = evaluate(x_new, &g_new, &at_new);
       if (f_new <= f + 1e-4 * step * slope) {
         accepted = true;
         break;
@@ -639,6 +678,7 @@ int PixelGridProblem::solve(std::vector<double>& x, int iterations, Terms* terms
     x.swap(x_new);
     g.swap(g_new);
     f = f_new;
+    at_x = at_new;
     losses.push_back(f);
     if (progress) progress(done + 1, f);
     if (converged > 0 && done + 1 >= kConvergedSteps) {
@@ -656,7 +696,7 @@ int PixelGridProblem::solve(std::vector<double>& x, int iterations, Terms* terms
       --stored;  // the pair is not kept, and its slot held the oldest
     }
   }
-  if (terms) evaluate(x, nullptr, terms);
+  if (terms) *terms = at_x;
   return done;
 }
 
@@ -673,12 +713,14 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
   const double blur_scale = blur_weight_ / (static_cast<double>(N) * C),
                event_scale = options_.beta / (static_cast<double>(N) * V);
   std::vector<SE3> poses(static_cast<size_t>(V));
+  std::vector<Matrix3> rotations(static_cast<size_t>(V));
   std::vector<std::array<SE3, 6>> moved(static_cast<size_t>(V));
   std::vector<KnotJacobians> jacobians(static_cast<size_t>(V));
   constexpr double h = 1e-6;
   for (int k = 0; k < V; ++k) {
     const auto i = static_cast<size_t>(k);
     poses[i] = motion_.poseAt(times_us_[i], &jacobians[i]);
+    rotations[i] = poses[i].rotationMatrix();
     for (int j = 0; j < 6; ++j)
       moved[i][static_cast<size_t>(j)] = poses[i] * expSE3(Vector6::Unit(j) * h);
   }
@@ -729,7 +771,7 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
         for (int k = 0; k < V; ++k) {
           const auto ki = static_cast<size_t>(k);
           double rho;
-          const Eigen::Vector2d q = cellOf(px, y, poses[ki], &rho);
+          const Eigen::Vector2d q = cellOf(px, y, rotations[ki], poses[ki].translation(), &rho);
           const Taps t = tapsAt(cellCoordinate(q.x()), cellCoordinate(q.y()), canvas_w_, canvas_h_);
           const double* a = x.data() + static_cast<size_t>(t.index) * C;
           const double* b = a + static_cast<size_t>(canvas_w_) * C;
@@ -776,8 +818,8 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
           terms.clear();
           addSources(k, 1.0);
           addSources(V, -1.0);
-          const double r = reference[ki] - reference[static_cast<size_t>(V)] -
-                           change_[static_cast<size_t>(k) * N + pixel];
+          const double r =
+              reference[ki] - reference[static_cast<size_t>(V)] - change_[viewSlot(k, pixel)];
           double weight;
           eventPenalty(r, &weight);  // iteratively reweighted: the penalty's gradient is 2 w r
           const double w = event_scale * weight;
@@ -864,7 +906,6 @@ double PixelGridProblem::heldOutEventTerm(const std::vector<double>& u) const {
   const std::vector<double> x = intensities(u);
   const int W = camera_.width, H = camera_.height, C = channels_, S = options_.subdivision,
             V = views_;
-  const size_t N = directions_.size();
   const LogMapping& log = options_.log;
   // In a fixed order (orderedSum), so that a close choice between candidates is the same on every
   // run.
@@ -881,13 +922,13 @@ double PixelGridProblem::heldOutEventTerm(const std::vector<double>& u) const {
       const double mid_log = log.logOf(std::max(0.0, nerf::greyOf(&x[mid], C)));
       for (int k = 0; k < V; ++k) {
         double value[3];
-        sample(x.data(), canvas_w_, C, taps_[static_cast<size_t>(k) * N + pixel], value);
+        sample(x.data(), canvas_w_, C, taps_[viewSlot(k, pixel)], value);
         logs[static_cast<size_t>(k)] = log.logOf(std::max(0.0, nerf::greyOf(value, C)));
       }
       referenceLevels(logs.data(), mid_log, reference.data(), source.data());
       for (int k = 0; k < V; ++k) {
         const double r = reference[static_cast<size_t>(k)] - reference[static_cast<size_t>(V)] -
-                         change_[static_cast<size_t>(k) * N + pixel];
+                         change_[viewSlot(k, pixel)];
         double weight;
         row_sum += eventPenalty(r, &weight);
       }
@@ -901,7 +942,6 @@ double PixelGridProblem::heldOutEventTerm(const std::vector<double>& u) const {
 cv::Mat PixelGridProblem::blurResiduals(const std::vector<double>& u) const {
   const std::vector<double> x = intensities(u);
   const int W = camera_.width, H = camera_.height, C = channels_, V = views_;
-  const size_t N = directions_.size();
   cv::Mat out(H, W, CV_64F);
 #pragma omp parallel for schedule(static)
   for (int y = 0; y < H; ++y) {
@@ -909,7 +949,7 @@ cv::Mat PixelGridProblem::blurResiduals(const std::vector<double>& u) const {
       const size_t pixel = static_cast<size_t>(y) * W + px;
       double sum[3] = {0, 0, 0}, value[3];
       for (int k = 0; k < V; ++k) {
-        sample(x.data(), canvas_w_, C, taps_[static_cast<size_t>(k) * N + pixel], value);
+        sample(x.data(), canvas_w_, C, taps_[viewSlot(k, pixel)], value);
         for (int c = 0; c < C; ++c) sum[c] += value[c];
       }
       double squares = 0;
@@ -976,11 +1016,12 @@ cv::Mat PixelGridProblem::render(const std::vector<double>& u, int64_t t_us) con
   const int W = camera_.width, H = camera_.height, C = channels_;
   cv::Mat out(H, W, CV_MAKETYPE(CV_32F, C));
   const SE3 pose = motion_.poseAt(t_us);
+  const Matrix3 R = pose.rotationMatrix();
 #pragma omp parallel for schedule(static)
   for (int y = 0; y < H; ++y) {
     float* row = out.ptr<float>(y);
     for (int px = 0; px < W; ++px) {
-      const Eigen::Vector2d q = cellOf(px, y, pose);
+      const Eigen::Vector2d q = cellOf(px, y, R, pose.translation());
       const Taps t = tapsAt(cellCoordinate(q.x()), cellCoordinate(q.y()), canvas_w_, canvas_h_);
       double value[3];
       sample(x.data(), canvas_w_, C, t, value);

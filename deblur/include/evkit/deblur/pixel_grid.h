@@ -130,9 +130,10 @@ class PixelGridProblem {
   cv::Mat render(const std::vector<double>& x, int64_t t_us) const;
 
  private:
-  // Where pixel (x, y) of the camera at `pose` sees the mid image (no margin), and the inverse
-  // depth it took.
-  Eigen::Vector2d cellOf(int x, int y, const SE3& pose, double* rho_used = nullptr) const;
+  // Where pixel (x, y) of the camera at the pose (R, t) sees the mid image (no margin), and the
+  // inverse depth it took.
+  Eigen::Vector2d cellOf(int x, int y, const Matrix3& R, const Vector3& t,
+                         double* rho_used = nullptr) const;
   void buildTaps();  // every view's stencils from the motion
   // The event term's window in views (0: against mid-exposure).
   int eventLag() const {
@@ -154,7 +155,12 @@ class PixelGridProblem {
   // the log level of its source sample source[k * plays + m] plus a constant; without hysteresis
   // the levels themselves (one play, its own source).
   void referenceLevels(const double* logs, double mid_log, double* reference, int* source) const;
-  int referencePlays() const { return band_up_ > 0 || band_down_ > 0 ? 4 : 1; }
+  // The gradient of the loss to the samples' log levels (d_level, index V for mid) from its
+  // gradient to their references (d_reference), through referenceLevels' sources: each reference
+  // is the mean of its plays' source levels.
+  void referenceGradient(const double* d_reference, const int* source, double* d_level) const;
+  static constexpr int kReferencePlays = 4;
+  int referencePlays() const { return band_up_ > 0 || band_down_ > 0 ? kReferencePlays : 1; }
   // The event term's penalty of a residual and its weight w (the penalty's derivative is 2 w r).
   double eventPenalty(double r, double* weight) const;  // from a log value, and dI/du
   // A mid-image coordinate on the canvas's cell grid.
@@ -175,9 +181,14 @@ class PixelGridProblem {
   double blur_px_ = 0, blur_weight_ = 1;
   int views_ = 0, margin_ = 0, canvas_w_ = 0, canvas_h_ = 0;
   std::vector<int64_t> times_us_;
-  std::vector<CanvasTaps> taps_;   // per view and pixel
-  std::vector<float> change_;      // per view and pixel: the events' log change since mid-exposure
-  std::vector<uint8_t> held_out_;  // per pixel, when some are held out (holdOutEvents)
+  // Per pixel and view, a pixel's views side by side (viewSlot): the loss reads them pixel by
+  // pixel.
+  std::vector<CanvasTaps> taps_;
+  std::vector<float> change_;  // the events' log change since mid-exposure
+  size_t viewSlot(int view, size_t pixel) const {
+    return pixel * static_cast<size_t>(views_) + static_cast<size_t>(view);
+  }
+  std::vector<uint8_t> held_out_;       // per pixel, when some are held out (holdOutEvents)
   double band_up_ = 0, band_down_ = 0;  // the reference's play (PixelGridOptions::hysteresis)
   int mid_slot_ = 0;                    // mid-exposure's place among the views in time order
   cv::Mat blurry_;
