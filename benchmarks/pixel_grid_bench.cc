@@ -1,7 +1,8 @@
 // The pixel grid's loss and gradient (PixelGridProblem::evaluate), the cost of each L-BFGS step of
-// BeNeRF's default field, at 346x260 in colour with `fast`'s 32 views, two cells per pixel, the
-// events against the sensor's reference level, the short windows and the robust penalty: a camera
-// that turns 2 degrees and slides over the exposure, 300k events.
+// BeNeRF's default field, ten steps, and three steps of the motion's refinement, at 346x260 in
+// colour with `fast`'s 32 views, two cells per pixel, the events against the sensor's reference
+// level, the short windows and the robust penalty: a camera that turns 2 degrees and slides over
+// the exposure, 300k events.
 //
 //   ./build/benchmarks/evkit_pixel_grid_bench
 
@@ -90,6 +91,21 @@ void BM_PixelGridSolve10(benchmark::State& state) {
   }
 }
 
+// Three Levenberg-Marquardt steps on the motion with the image fixed (BeNeRF's second refinement):
+// each step's normal equations, and each trial motion's stencils and loss.
+void BM_PixelGridRefineMotion3(benchmark::State& state) {
+  omp_set_num_threads(static_cast<int>(state.range(0)));
+  cv::Mat frame(kHeight, kWidth, CV_32FC3);
+  cv::randu(frame, cv::Scalar::all(0.05), cv::Scalar::all(0.95));
+  for (auto _ : state) {
+    state.PauseTiming();
+    PixelGridProblem p = problem();
+    const std::vector<double> x = p.start(frame);
+    state.ResumeTiming();
+    benchmark::DoNotOptimize(p.refineMotion(x, 3));
+  }
+}
+
 BENCHMARK(BM_PixelGridEvaluate)
     ->Args({1, 1})
     ->Args({2, 1})
@@ -97,6 +113,7 @@ BENCHMARK(BM_PixelGridEvaluate)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 BENCHMARK(BM_PixelGridSolve10)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_PixelGridRefineMotion3)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 }  // namespace
 }  // namespace evkit
