@@ -33,6 +33,13 @@ PixelGridOptions fastOptions() {
   return o;
 }
 
+// An image of uniform noise in [0.05, 0.95]: the blurry frame, and where the unknowns start.
+cv::Mat randomImage() {
+  cv::Mat image(kHeight, kWidth, CV_32FC3);
+  cv::randu(image, cv::Scalar::all(0.05), cv::Scalar::all(0.95));
+  return image;
+}
+
 const PixelGridProblem& problem() {
   static const PixelGridProblem p = [] {
     RandomEventOptions e;
@@ -41,8 +48,7 @@ const PixelGridProblem& problem() {
     Observation obs;
     obs.events = randomEvents(e);
     const int64_t t0 = obs.events.t.front(), t1 = t0 + 100'000;
-    obs.blurry.image = cv::Mat(kHeight, kWidth, CV_32FC3);
-    cv::randu(obs.blurry.image, cv::Scalar::all(0.05), cv::Scalar::all(0.95));
+    obs.blurry.image = randomImage();
     obs.blurry.exposure_start_us = t0;
     obs.blurry.exposure_end_us = t1;
     const PinholeCamera camera = PinholeCamera::assumed(kWidth, kHeight).withSize(kWidth, kHeight);
@@ -69,9 +75,7 @@ const PixelGridProblem& problem() {
 void BM_PixelGridEvaluate(benchmark::State& state) {
   omp_set_num_threads(static_cast<int>(state.range(0)));
   const PixelGridProblem& p = problem();
-  cv::Mat frame(kHeight, kWidth, CV_32FC3);
-  cv::randu(frame, cv::Scalar::all(0.05), cv::Scalar::all(0.95));
-  const std::vector<double> x = p.start(frame);
+  const std::vector<double> x = p.start(randomImage());
   std::vector<double> gradient;
   for (auto _ : state)
     benchmark::DoNotOptimize(p.evaluate(x, state.range(1) ? &gradient : nullptr));
@@ -82,9 +86,7 @@ void BM_PixelGridEvaluate(benchmark::State& state) {
 void BM_PixelGridSolve10(benchmark::State& state) {
   omp_set_num_threads(static_cast<int>(state.range(0)));
   const PixelGridProblem& p = problem();
-  cv::Mat frame(kHeight, kWidth, CV_32FC3);
-  cv::randu(frame, cv::Scalar::all(0.05), cv::Scalar::all(0.95));
-  const std::vector<double> start = p.start(frame);
+  const std::vector<double> start = p.start(randomImage());
   for (auto _ : state) {
     std::vector<double> x = start;
     benchmark::DoNotOptimize(p.solve(x, 10));
@@ -95,8 +97,7 @@ void BM_PixelGridSolve10(benchmark::State& state) {
 // each step's normal equations, and each trial motion's stencils and loss.
 void BM_PixelGridRefineMotion3(benchmark::State& state) {
   omp_set_num_threads(static_cast<int>(state.range(0)));
-  cv::Mat frame(kHeight, kWidth, CV_32FC3);
-  cv::randu(frame, cv::Scalar::all(0.05), cv::Scalar::all(0.95));
+  const cv::Mat frame = randomImage();
   for (auto _ : state) {
     state.PauseTiming();
     PixelGridProblem p = problem();
