@@ -143,8 +143,6 @@ double PixelGridProblem::eventPenalty(double r, double* weight) const {
 void PixelGridProblem::referenceLevels(const double* logs, double mid_log, double* reference,
                                        int* source) const {
   const int V = views_, M = referencePlays();
-  // The s-th sample in time order: the views before mid-exposure, mid (index V), the views after.
-  const auto at = [&](int s) { return s < mid_slot_ ? s : s == mid_slot_ ? V : s - 1; };
   const auto level = [&](int i) { return i == V ? mid_log : logs[i]; };
   if (M == 1) {  // no play: each sample's own level (a tie with the one before stays its own)
     for (int i = 0; i <= V; ++i) {
@@ -155,9 +153,9 @@ void PixelGridProblem::referenceLevels(const double* logs, double mid_log, doubl
   }
   // The plays side by side, sample by sample (each sample's level and band read once).
   double before[kReferencePlays];
-  int* from = source + static_cast<size_t>(at(0)) * M;
+  int* from = source + static_cast<size_t>(sampleInTimeOrder(0)) * M;
   {
-    const int i = at(0);
+    const int i = sampleInTimeOrder(0);
     const double l = level(i);
     double sum = 0;
     for (int m = 0; m < M; ++m) {
@@ -170,7 +168,7 @@ void PixelGridProblem::referenceLevels(const double* logs, double mid_log, doubl
     reference[i] = sum / M;
   }
   for (int s = 1; s <= V; ++s) {
-    const int i = at(s);
+    const int i = sampleInTimeOrder(s);
     const double l = level(i), low = l - band_up_, high = l + band_down_;
     int* const previous = from;
     from = source + static_cast<size_t>(i) * M;
@@ -198,13 +196,12 @@ void PixelGridProblem::referenceGradient(const double* d_reference, const int* s
     std::copy(d_reference, d_reference + V + 1, d_level);
     return;
   }
-  const auto at = [&](int s) { return s < mid_slot_ ? s : s == mid_slot_ ? V : s - 1; };
   // A play holds its source's level over a run of samples in time order, the source first. From
   // the last sample back, each sample's share is carried until its run's source, which takes it
   // (no sample's level is written more than once).
   double carry[kReferencePlays] = {};
   for (int s = V; s >= 0; --s) {
-    const int i = at(s);
+    const int i = sampleInTimeOrder(s);
     const double share = d_reference[i] / M;
     const int* from = source + static_cast<size_t>(i) * M;
     double own = 0;

@@ -159,6 +159,9 @@ class PixelGridProblem {
   // gradient to their references (d_reference), through referenceLevels' sources: each reference
   // is the mean of its plays' source levels.
   void referenceGradient(const double* d_reference, const int* source, double* d_level) const;
+  // The s-th sample in time order: the views before mid-exposure, mid (index views_), the views
+  // after.
+  int sampleInTimeOrder(int s) const { return s < mid_slot_ ? s : s == mid_slot_ ? views_ : s - 1; }
   static constexpr int kReferencePlays = 4;
   int referencePlays() const { return band_up_ > 0 || band_down_ > 0 ? kReferencePlays : 1; }
   // The event term's penalty of a residual and its weight w (the penalty's derivative is 2 w r).
