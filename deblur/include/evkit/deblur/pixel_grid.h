@@ -162,6 +162,10 @@ class PixelGridProblem {
   // The s-th sample in time order: the views before mid-exposure, mid (index views_), the views
   // after.
   int sampleInTimeOrder(int s) const { return s < mid_slot_ ? s : s == mid_slot_ ? views_ : s - 1; }
+  // Where view `view` of pixel `pixel` is in taps_ and change_.
+  size_t viewSlot(int view, size_t pixel) const {
+    return pixel * static_cast<size_t>(views_) + static_cast<size_t>(view);
+  }
   static constexpr int kReferencePlays = 4;
   int referencePlays() const { return band_up_ > 0 || band_down_ > 0 ? kReferencePlays : 1; }
   // The event term's penalty of a residual and its weight w (the penalty's derivative is 2 w r).
@@ -187,10 +191,7 @@ class PixelGridProblem {
   // Per pixel and view, a pixel's views side by side (viewSlot): the loss reads them pixel by
   // pixel.
   std::vector<CanvasTaps> taps_;
-  std::vector<float> change_;  // the events' log change since mid-exposure
-  size_t viewSlot(int view, size_t pixel) const {
-    return pixel * static_cast<size_t>(views_) + static_cast<size_t>(view);
-  }
+  std::vector<float> change_;           // the events' log change since mid-exposure
   std::vector<uint8_t> held_out_;       // per pixel, when some are held out (holdOutEvents)
   double band_up_ = 0, band_down_ = 0;  // the reference's play (PixelGridOptions::hysteresis)
   int mid_slot_ = 0;                    // mid-exposure's place among the views in time order
