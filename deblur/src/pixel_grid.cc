@@ -965,6 +965,12 @@ void PixelGridProblem::setMotion(const Trajectory& motion) {
   buildTaps();
 }
 
+// The least damping a step that failed is tried again with. Below it the damped step is the
+// Gauss-Newton step but for a few percent (the predicted reduction on nat_cat_bricks_blur30:
+// 3.14e-7 at 9e-5, 3.11e-7 at 9e-3, 3.06e-7 at 9e-2), so a retry there fails as the step did; the
+// steps that followed a failure were taken at 0.3-9 (BENCHMARKS.md, "The motion's retries").
+constexpr double kRetryDamping = 0.1;
+
 double PixelGridProblem::refineMotion(const std::vector<double>& u, int iterations) {
   // Levenberg-Marquardt on the knots with the image fixed, on every other row and column. Called
   // before the image is solved for (EDI's frame, which has not yet taken up the motion's errors
@@ -997,7 +1003,7 @@ double PixelGridProblem::refineMotion(const std::vector<double>& u, int iteratio
         improved = true;
       } else {
         motion_.knots() = saved;
-        damping *= 10;
+        damping = std::max(10 * damping, kRetryDamping);
       }
     }
     if (!improved) {
