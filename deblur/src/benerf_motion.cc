@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 #include <stdexcept>
@@ -771,6 +772,37 @@ ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamer
                                       int intervals) {
   TrackedPoints points = trackLatentFrames(obs, contrast, log, intervals);
   return fitMotion(camera, points, choose_depth_offset);
+}
+
+double registrationMisfit(const ExposureMotion& motion) {
+  if (!(motion.residual_plane_px > 0)) return std::numeric_limits<double>::infinity();
+  if (motion.pixel_depth) return motion.residual_pixels_px;
+  return motion.depth ? motion.residual_depth_px : motion.residual_plane_px;
+}
+
+ExposureMotion registerAwayFromSearch(
+    const BlurMeasurement& measured, const ExposureMotion& at_searched,
+    const std::function<ExposureMotion(const Contrast&)>& registerAt, double* registered_c) {
+  const double ratio = measured.c_off / measured.c_on;
+  const EdiOptions edi;
+  const bool upper_half = measured.c_on > std::sqrt(edi.search_min * edi.search_max);
+  int direction = measured.inside || upper_half ? -1 : 1;
+  *registered_c = 0;
+  ExposureMotion motion;
+  for (int k = 1, tries = 0; tries < 6; ++k, ++tries) {
+    const double c = measured.c_on * std::exp2(direction * k / 3.0);
+    motion = registerAt(Contrast{c, c * ratio});
+    if (!motion.poses.empty()) {
+      *registered_c = c;
+      break;
+    }
+    if (tries == 0 && measured.inside &&
+        registrationMisfit(motion) > registrationMisfit(at_searched)) {
+      direction = 1;  // the misfit rose below EDI's c: up from it instead
+      k = 0;
+    }
+  }
+  return motion;
 }
 
 CalibratedMotion calibrateFromLatentFrames(const Observation& obs, const PinholeCamera& assumed,

@@ -127,18 +127,16 @@ Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& 
     } else {
       s.motion = motionFromLatentFrames(obs, camera, o.contrast, o.log);
     }
-    // The pixel grid without thresholds: where the registration at EDI's searched c fails (its
-    // search scores sharpness, which a c too large raises too, and EDI's frames then carry ghost
-    // edges that the flow cannot follow), at c's below it by steps of 2^(1/3) to a quarter, the
-    // first that registers; runPixelGrid refines the c from there.
+    // The pixel grid without thresholds: where the registration at EDI's searched c fails, at c's
+    // away from it, the first that registers; runPixelGrid refines the c from there.
     if (s.motion.poses.empty() && !s.contrast_given &&
         o.field == BenerfOptions::FieldKind::kPixels && s.measured.searched) {
-      const double ratio = s.measured.c_off / s.measured.c_on;
-      for (int k = 1; k <= 6 && s.motion.poses.empty(); ++k) {
-        const double c = s.measured.c_on * std::exp2(-k / 3.0);
-        s.motion = motionFromLatentFrames(obs, camera, Contrast{c, c * ratio}, o.log);
-        if (!s.motion.poses.empty()) result.parameters["contrast_registered"] = c;
-      }
+      double registered_c = 0;
+      s.motion = registerAwayFromSearch(
+          s.measured, s.motion,
+          [&](const Contrast& c) { return motionFromLatentFrames(obs, camera, c, o.log); },
+          &registered_c);
+      if (registered_c > 0) result.parameters["contrast_registered"] = registered_c;
     }
     reportMotion(s.motion, result);
     result.timings_s["registration"] = secondsSince(registration_start);

@@ -1117,6 +1117,53 @@ TEST(Benerf, WithoutThresholdsTheGridDeclinesWhereItsCIsAtAnEndOfItsRange) {
       << "BeNeRF " << m.benerf_psnr << " dB, EDI (c searched) " << m.edi_psnr << " dB";
 }
 
+// Where the registration at EDI's searched c fails, it is tried again away from that c: down from
+// the top of EDI's range, up from its bottom, and from inside it the way the misfit falls. A
+// stand-in registration whose misfit is least at c = 0.2 (0.6 px, rising by 2 px per unit of |ln(c
+// / 0.2)|) registers where the misfit is at most 1 px, c in [0.164, 0.244]; c_off keeps its ratio
+// to c_on.
+TEST(Benerf, AFailedRegistrationIsTriedAgainTowardsItsLeastMisfit) {
+  std::vector<double> tried;
+  const auto standIn = [&](const Contrast& c) {
+    EXPECT_NEAR(c.off / c.on, 1.1, 1e-12);
+    tried.push_back(c.on);
+    ExposureMotion m;
+    m.residual_plane_px = 0.6 + 2 * std::abs(std::log(c.on / 0.2));
+    if (m.residual_plane_px <= 1) m.poses.push_back({0, SE3()});
+    return m;
+  };
+  const auto from = [&](double c, bool inside) {
+    tried.clear();
+    BlurMeasurement measured;
+    measured.c_on = c;
+    measured.c_off = 1.1 * c;
+    measured.searched = true;
+    measured.inside = inside;
+    double registered = -1;
+    const ExposureMotion m =
+        registerAwayFromSearch(measured, standIn({c, 1.1 * c}), standIn, &registered);
+    tried.erase(tried.begin());  // the registration at EDI's c itself
+    EXPECT_EQ(m.poses.empty(), registered == 0);
+    return registered;
+  };
+  // EDI's search at its bottom (0.1): up, 0.126, 0.159, then 0.2 registers.
+  EXPECT_NEAR(from(0.1, false), 0.2, 1e-12);
+  EXPECT_EQ(tried.size(), 3u);
+  // At its top (0.5): down, 0.397, 0.315, 0.25, then 0.198.
+  EXPECT_NEAR(from(0.5, false), 0.5 * std::exp2(-4 / 3.0), 1e-12);
+  EXPECT_EQ(tried.size(), 4u);
+  // Inside (0.15): down once to 0.119, where the misfit rose (1.64 against 1.18 px), then up to
+  // 0.189.
+  EXPECT_NEAR(from(0.15, true), 0.15 * std::exp2(1 / 3.0), 1e-12);
+  ASSERT_EQ(tried.size(), 2u);
+  EXPECT_LT(tried[0], 0.15);
+  // Inside (0.3), the misfit falling downwards: on down to 0.238.
+  EXPECT_NEAR(from(0.3, true), 0.3 * std::exp2(-1 / 3.0), 1e-12);
+  // Where none registers (from the top, never within 0.164): six tries, no poses.
+  EXPECT_EQ(from(0.5 * std::exp2(7 / 3.0), false), 0.0);
+  EXPECT_EQ(tried.size(), 6u);
+}
+
 // A shake that turns twice within the exposure (a cubic B-spline of 6 knots): one cubic segment
 // through the registered poses puts the mid-exposure frame pixels off and doubles its edges. The
 // knots are chosen from the registered poses (knotsByLeaveOneOut on their image motion). Text at

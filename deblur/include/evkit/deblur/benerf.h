@@ -312,6 +312,22 @@ ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamer
                                       const LogMapping& log = {}, bool choose_depth_offset = true,
                                       int intervals = kScoredIntervals);
 
+// The registration's misfit: its chosen model's RMS residual (px); infinite where too few points
+// were tracked to fit one.
+double registrationMisfit(const ExposureMotion& motion);
+// Without thresholds, where the registration at EDI's searched c (`at_searched`) failed: the
+// registration (`registerAt`) at c's away from it by steps of 2^(1/3), at most six, and the first
+// that registers, with its c_on in `registered_c` (0 where none did; the poses empty then). Down
+// from the top of EDI's range (its search scores sharpness, which a c too large raises too, and
+// EDI's frames then carry ghost edges that the flow cannot follow: most natural scenes), up from
+// its bottom (frames still blurred: below the bottom's 0.1 on a 50 px blur with noise, truth 0.2,
+// the first to register was 0.025, a motion collapsed with its c), and from inside it the way the
+// misfit falls (on that scene least at the truth, 0.67 px, against 1.14 at 0.1; BENCHMARKS.md,
+// "Outside the suites: shakes, seeds and blurs not in them").
+ExposureMotion registerAwayFromSearch(
+    const BlurMeasurement& measured, const ExposureMotion& at_searched,
+    const std::function<ExposureMotion(const Contrast&)>& registerAt, double* registered_c);
+
 // The camera where no calibration was given: the radial distortion k1 (OpenCV's model, k2 = p1 =
 // p2 = 0) that lets the rigid camera explain the points tracked between EDI's latent frames best
 // (the per-tile depth model's RMS residual), over the barrel ladder below, and the motion
