@@ -75,6 +75,9 @@ Eigen::Vector2d predict(const PinholeCamera& camera, const Vector3& bearing, dou
 
 constexpr double kHuberPx = 1.0;
 
+// Fewer textured points tracked than this, and no model is fitted (no poses, an infinite misfit).
+constexpr int kMinTracks = 50;
+
 // The nearest a fitted depth may put a point, as an inverse depth in the registration's units
 // (where the nearest tracks, the 95th percentile, are at depth 1.5): 1 / 1.05, or depth 0.1 in a
 // tile whose tracks were seen on both sides of mid-exposure (tileNearest).
@@ -680,7 +683,7 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
   const int kTilesX = points.tiles_x, kTilesY = points.tiles_y;
   for (Track& tr : tracks) tr.bearing = nerf::pixelDirection(camera, tr.pixel.x(), tr.pixel.y());
   m.tracks = static_cast<int>(tracks.size());
-  if (tracks.size() < 50) return m;
+  if (m.tracks < kMinTracks) return m;
 
   // Three models of rising richness: a rotation alone; a rotation and a translation seen through
   // one plane (a homography per time); the same through an inverse depth per tile.
@@ -775,7 +778,7 @@ ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamer
 }
 
 double registrationMisfit(const ExposureMotion& motion) {
-  if (!(motion.residual_plane_px > 0)) return std::numeric_limits<double>::infinity();
+  if (motion.tracks < kMinTracks) return std::numeric_limits<double>::infinity();
   if (motion.pixel_depth) return motion.residual_pixels_px;
   return motion.depth ? motion.residual_depth_px : motion.residual_plane_px;
 }
@@ -783,24 +786,25 @@ double registrationMisfit(const ExposureMotion& motion) {
 ExposureMotion registerAwayFromSearch(
     const BlurMeasurement& measured, const ExposureMotion& at_searched,
     const std::function<ExposureMotion(const Contrast&)>& registerAt, double* registered_c) {
+  constexpr int kTries = 6;
   const double ratio = measured.c_off / measured.c_on;
+  ExposureMotion motion;
+  // The registration at `steps` of 2^(1/3) from EDI's c; its c_on where it registered, else 0.
+  const auto registers = [&](int steps) {
+    const double c = measured.c_on * std::exp2(steps / 3.0);
+    motion = registerAt(Contrast{c, c * ratio});
+    *registered_c = motion.poses.empty() ? 0 : c;
+    return !motion.poses.empty();
+  };
   const EdiOptions edi;
   const bool upper_half = measured.c_on > std::sqrt(edi.search_min * edi.search_max);
-  int direction = measured.inside || upper_half ? -1 : 1;
-  *registered_c = 0;
-  ExposureMotion motion;
-  for (int k = 1, tries = 0; tries < 6; ++k, ++tries) {
-    const double c = measured.c_on * std::exp2(direction * k / 3.0);
-    motion = registerAt(Contrast{c, c * ratio});
-    if (!motion.poses.empty()) {
-      *registered_c = c;
-      break;
-    }
-    if (tries == 0 && measured.inside &&
-        registrationMisfit(motion) > registrationMisfit(at_searched)) {
-      direction = 1;  // the misfit rose below EDI's c: up from it instead
-      k = 0;
-    }
+  const int first = measured.inside || upper_half ? -1 : 1;
+  if (registers(first)) return motion;
+  // From inside EDI's range, where the misfit rose one step below EDI's c: up from it instead.
+  const bool turned =
+      measured.inside && registrationMisfit(motion) > registrationMisfit(at_searched);
+  for (int i = 0; i < kTries - 1; ++i) {
+    if (registers(turned ? 1 + i : first * (2 + i))) break;
   }
   return motion;
 }
@@ -814,7 +818,7 @@ CalibratedMotion calibrateFromLatentFrames(const Observation& obs, const Pinhole
   best.motion = fitMotion(assumed, points, true);
   best.residual_assumed_px = best.motion.residual_depth_px;
   best.cameras_tried = 1;
-  if (best.motion.tracks < 50) return best;
+  if (best.motion.tracks < kMinTracks) return best;
   const auto camera = [&](double k1) {
     PinholeCamera c = assumed;
     c.distortion = {k1, 0, 0, 0};

@@ -1128,6 +1128,7 @@ TEST(Benerf, AFailedRegistrationIsTriedAgainTowardsItsLeastMisfit) {
     EXPECT_NEAR(c.off / c.on, 1.1, 1e-12);
     tried.push_back(c.on);
     ExposureMotion m;
+    m.tracks = 100;
     m.residual_plane_px = 0.6 + 2 * std::abs(std::log(c.on / 0.2));
     if (m.residual_plane_px <= 1) m.poses.push_back({0, SE3()});
     return m;
