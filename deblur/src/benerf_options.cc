@@ -208,7 +208,26 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
                 "the knots' random start, exp(u) with u uniform in [-knot_init, knot_init]^6")
         .number("lr_final", &O::lr_final, positive, "the fraction both learning rates decay to")
         .integer("seed", &O::seed, {0}, "random seed")
-        .integer("threads", &O::threads, {0}, "OpenMP threads (0: OpenMP's default)")
+        .custom({"threads", "N|auto",
+                 "threads (0: OpenMP's default, every core; auto: the cores other programs leave "
+                 "idle, measured at the start)",
+                 [](O& o, const std::string& v) {
+                   if (v == "auto") {
+                     o.threads = kThreadsFromLoad;
+                     return;
+                   }
+                   try {
+                     o.threads = positiveInt("threads", v, 0, 4096);
+                   } catch (const Error&) {
+                     throw Error("benerf: setting threads=" + v +
+                                 " must be an integer in [0, 4096] or auto");
+                   }
+                 },
+                 [](const O&) {},
+                 [](const O& o) {
+                   return o.threads == kThreadsFromLoad ? std::string("auto")
+                                                        : std::to_string(o.threads);
+                 }})
         .custom(
             {"checkpoint", "path",
              "write a checkpoint here every checkpoint_every steps and at the end",

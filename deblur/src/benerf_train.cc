@@ -5,17 +5,20 @@
 
 #include <algorithm>
 #include <array>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <limits>
 #include <numbers>
 #include <opencv2/imgproc.hpp>
+#include <optional>
 #include <vector>
 
 #include "benerf_checkpoint.h"
 #include "benerf_common.h"
 #include "evkit/base/error.h"
 #include "evkit/deblur/benerf.h"
+#include "evkit/deblur/cores.h"
 #include "evkit/deblur/edi.h"
 #include "evkit/deblur/metrics.h"
 #include "evkit/deblur/pixel_grid.h"
@@ -56,17 +59,30 @@ const Frame* midGroundTruth(const Observation& obs) {
   return best;
 }
 
-// Sets OpenMP's thread count for one run and restores it afterwards.
+// Sets OpenMP's thread count for one run and restores it afterwards: `threads`, or at
+// kThreadsFromLoad the cores that other programs leave idle (measured over kLoadWindow before the
+// run: a step waits for its slowest thread, and a thread that shares its core with a busy program
+// holds back all). The count run on, and the load measured, go to the result's parameters.
 class ThreadScope {
  public:
-  explicit ThreadScope(int threads) : saved_(omp_get_max_threads()) {
+  ThreadScope(int threads, DeblurResult& result) : saved_(omp_get_max_threads()) {
+    if (threads == kThreadsFromLoad) {
+      threads = 0;
+      if (const std::optional<CoreLoad> load = measureCoreLoad(kLoadWindow)) {
+        threads = threadsForLoad(*load, saved_);
+        result.parameters["busy_cores_elsewhere"] = load->busy_elsewhere;
+      }
+    }
     if (threads > 0) omp_set_num_threads(threads);
+    result.parameters["threads"] = omp_get_max_threads();
   }
   ~ThreadScope() { omp_set_num_threads(saved_); }
   ThreadScope(const ThreadScope&) = delete;
   ThreadScope& operator=(const ThreadScope&) = delete;
 
  private:
+  // Ten of /proc/stat's ticks: the load to a tenth of a core, 1% of a frame at `fast`.
+  static constexpr std::chrono::milliseconds kLoadWindow{100};
   int saved_;
 };
 
@@ -754,7 +770,7 @@ DeblurResult BenerfDeblurrer::run(const Observation& given, const DeblurRequest&
   const auto start = Clock::now();
   DeblurResult result;
   result.parameters["frame_grey"] = 0;
-  const ThreadScope threads(options_.threads);
+  const ThreadScope threads(options_.threads, result);
   Start s = prepare(given, options_, result);
   const BenerfOptions& o = s.options;
   // Every later step sees the camera the run uses (an estimated one replaces the assumed).

@@ -2,9 +2,14 @@
 
 #include <gtest/gtest.h>
 #include <omp.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <opencv2/imgproc.hpp>
 #include <random>
 #include <stdexcept>
@@ -539,6 +544,36 @@ TEST(Benerf, DeterministicWithOneThreadAndASeed) {
   o.seed = 2;
   const DeblurResult c = BenerfDeblurrer(o).run(obs, request);
   EXPECT_GT(cv::norm(a.frames[0].image, c.frames[0].image, cv::NORM_INF), 0.0);
+}
+
+// threads=auto: beside a process that spins on one core, the run takes one thread fewer than
+// OpenMP's default (never none) and says what it measured; a given count is kept.
+TEST(Benerf, WithThreadsAutoARunLeavesABusyCoreAlone) {
+  if (!std::ifstream("/proc/stat")) GTEST_SKIP() << "no /proc/stat on this system";
+  const Observation& obs = tinyScene();
+  BenerfOptions o = smallBudget();
+  o.iterations = 1;
+  o.threads = kThreadsFromLoad;
+  const DeblurRequest request{{obs.blurry.midExposure()}, {}};
+  const pid_t child = fork();
+  ASSERT_GE(child, 0) << "fork failed";
+  if (child == 0) {
+    alarm(60);  // ends itself should this test die first
+    volatile uint64_t spins = 0;
+    for (;;) spins = spins + 1;
+  }
+  const DeblurResult r = BenerfDeblurrer(o).run(obs, request);
+  kill(child, SIGKILL);
+  waitpid(child, nullptr, 0);
+  const auto& p = r.parameters;
+  ASSERT_TRUE(p.count("busy_cores_elsewhere"));
+  EXPECT_GE(p.at("busy_cores_elsewhere"), 0.7);  // other tests beside it only add
+  EXPECT_LE(p.at("threads"), std::max(1, omp_get_max_threads() - 1));
+  EXPECT_GE(p.at("threads"), 1.0);
+  o.threads = 1;
+  const DeblurResult given = BenerfDeblurrer(o).run(obs, request);
+  EXPECT_EQ(given.parameters.at("threads"), 1.0);
+  EXPECT_EQ(given.parameters.count("busy_cores_elsewhere"), 0u);
 }
 
 TEST(Benerf, ResumingFromACheckpointContinuesTheSameRun) {

@@ -117,5 +117,20 @@ TEST(Settings, ChoicesRoundTripThroughTheirNames) {
             std::string::npos);
 }
 
+// threads: a count, or auto (the cores other programs leave idle), shown back as it was given.
+TEST(Settings, ThreadsAreACountOrAuto) {
+  EXPECT_EQ(benerfOptions({}).threads, 0);
+  EXPECT_EQ(benerfOptions({{"threads", "3"}}).threads, 3);
+  EXPECT_EQ(benerfOptions({{"threads", "auto"}}).threads, kThreadsFromLoad);
+  for (const char* bad : {"-1", "1.5", "many"}) {
+    EXPECT_NE(errorOf([&] {
+                benerfOptions({{"threads", bad}});
+              }).find("must be an integer in [0, 4096] or auto"),
+              std::string::npos)
+        << bad;
+  }
+  EXPECT_NE(deblurrerHelp("benerf").find("threads (N|auto, default 0)"), std::string::npos);
+}
+
 }  // namespace
 }  // namespace evkit

@@ -44,6 +44,9 @@
 
 namespace evkit {
 
+// BenerfOptions::threads for the cores that other programs leave idle.
+inline constexpr int kThreadsFromLoad = -1;
+
 // The defaults are the `balanced` budget's (benerfBudget); every setting, its range and its help
 // are declared once in benerfSettings() (benerf_options.cc).
 struct BenerfOptions {
@@ -200,7 +203,10 @@ struct BenerfOptions {
   double budget_seconds = 0;  // > 0: the iteration count is chosen so that the whole run (training
                               // and renders) fits this wall time
   uint64_t seed = 1;
-  int threads = 0;  // 0: OpenMP's default
+  // 0: OpenMP's default (every core, or OMP_NUM_THREADS); kThreadsFromLoad: the cores that other
+  // programs leave idle, measured before the run (cores.h). The figures are the same bit for bit on
+  // every run with the same thread count, not across counts.
+  int threads = 0;
   LogMapping log;
   // Checkpoint: written every checkpoint_every iterations and at the end when a path is given;
   // resume continues from one (the same observation and settings).
