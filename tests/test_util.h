@@ -2,9 +2,12 @@
 #pragma once
 
 #include <gtest/gtest.h>
+#include <signal.h>
 #include <sys/wait.h>
+#include <unistd.h>
 
 #include <array>
+#include <cstdint>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -75,6 +78,30 @@ inline std::string fixture(const std::string& name) {
 }
 
 // Files under `dir` whose name contains ".tmp-" (leftovers of an interrupted write).
+// Another program that keeps one core busy for the life of this object: a child process that
+// spins, killed and reaped at the end (and ending itself after `seconds` should the test die
+// first). pid() is -1 where fork failed.
+class SpinningProcess {
+ public:
+  explicit SpinningProcess(unsigned seconds = 60) : pid_(fork()) {
+    if (pid_ != 0) return;
+    alarm(seconds);
+    volatile uint64_t spins = 0;
+    for (;;) spins = spins + 1;
+  }
+  ~SpinningProcess() {
+    if (pid_ <= 0) return;
+    kill(pid_, SIGKILL);
+    waitpid(pid_, nullptr, 0);
+  }
+  SpinningProcess(const SpinningProcess&) = delete;
+  SpinningProcess& operator=(const SpinningProcess&) = delete;
+  pid_t pid() const { return pid_; }
+
+ private:
+  pid_t pid_;
+};
+
 inline int countTemporaries(const fs::path& dir) {
   int n = 0;
   for (const auto& e : fs::recursive_directory_iterator(dir)) {

@@ -2,9 +2,6 @@
 
 #include <gtest/gtest.h>
 #include <omp.h>
-#include <signal.h>
-#include <sys/wait.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
@@ -555,16 +552,12 @@ TEST(Benerf, WithThreadsAutoARunLeavesABusyCoreAlone) {
   o.iterations = 1;
   o.threads = kThreadsFromLoad;
   const DeblurRequest request{{obs.blurry.midExposure()}, {}};
-  const pid_t child = fork();
-  ASSERT_GE(child, 0) << "fork failed";
-  if (child == 0) {
-    alarm(60);  // ends itself should this test die first
-    volatile uint64_t spins = 0;
-    for (;;) spins = spins + 1;
+  DeblurResult r;
+  {
+    const test::SpinningProcess busy;
+    ASSERT_GT(busy.pid(), 0) << "fork failed";
+    r = BenerfDeblurrer(o).run(obs, request);
   }
-  const DeblurResult r = BenerfDeblurrer(o).run(obs, request);
-  kill(child, SIGKILL);
-  waitpid(child, nullptr, 0);
   const auto& p = r.parameters;
   ASSERT_TRUE(p.count("busy_cores_elsewhere"));
   EXPECT_GE(p.at("busy_cores_elsewhere"), 0.7);  // other tests beside it only add

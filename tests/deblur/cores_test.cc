@@ -1,12 +1,12 @@
 #include "evkit/deblur/cores.h"
 
 #include <gtest/gtest.h>
-#include <signal.h>
-#include <sys/wait.h>
-#include <unistd.h>
 
 #include <chrono>
 #include <fstream>
+#include <optional>
+
+#include "test_util.h"
 
 namespace evkit {
 namespace {
@@ -55,16 +55,12 @@ TEST(Cores, ThreadsAreTheIdleCoresRounded) {
 // beside this one can only add to it.
 TEST(Cores, SeesAnotherProcessThatSpins) {
   if (!std::ifstream("/proc/stat")) GTEST_SKIP() << "no /proc/stat on this system";
-  const pid_t child = fork();
-  ASSERT_GE(child, 0) << "fork failed";
-  if (child == 0) {
-    alarm(20);  // ends itself should this test die first
-    volatile uint64_t spins = 0;
-    for (;;) spins = spins + 1;
+  std::optional<CoreLoad> load;
+  {
+    const test::SpinningProcess busy;
+    ASSERT_GT(busy.pid(), 0) << "fork failed";
+    load = measureCoreLoad(std::chrono::milliseconds(300));
   }
-  const std::optional<CoreLoad> load = measureCoreLoad(std::chrono::milliseconds(300));
-  kill(child, SIGKILL);
-  waitpid(child, nullptr, 0);
   ASSERT_TRUE(load);
   EXPECT_GE(load->cores, 1);
   EXPECT_GE(load->busy_elsewhere, 0.7) << "on " << load->cores << " cores";
