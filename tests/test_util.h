@@ -77,7 +77,6 @@ inline std::string fixture(const std::string& name) {
   return fs::exists(p) ? fs::canonical(p).string() : std::string();
 }
 
-// Files under `dir` whose name contains ".tmp-" (leftovers of an interrupted write).
 // Another program that keeps one core busy for the life of this object: a child process that
 // spins, killed and reaped at the end (and ending itself after `seconds` should the test die
 // first). pid() is -1 where fork failed.
@@ -102,6 +101,7 @@ class SpinningProcess {
   pid_t pid_;
 };
 
+// Files under `dir` whose name contains ".tmp-" (leftovers of an interrupted write).
 inline int countTemporaries(const fs::path& dir) {
   int n = 0;
   for (const auto& e : fs::recursive_directory_iterator(dir)) {
