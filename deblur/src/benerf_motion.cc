@@ -176,24 +176,22 @@ void fitDepth(const PinholeCamera& camera, const std::vector<Track>& tracks,
               const DepthModel& model, const std::vector<Vector3>& theta,
               const std::vector<Vector3>& p, const std::vector<int>& support, Eigen::VectorXd& w) {
   const int n = model.size();
-  const int threads = omp_get_max_threads();
-  std::vector<Eigen::MatrixXd> Hs(static_cast<size_t>(threads));
-  std::vector<Eigen::VectorXd> gs(static_cast<size_t>(threads));
+  // The tracks in kPieces pieces whatever the thread count, each piece's sums on their own and
+  // the pieces added in order: one thread and many give the same bits.
+  constexpr int kPieces = 16;
+  std::vector<Eigen::MatrixXd> Hs(kPieces);
+  std::vector<Eigen::VectorXd> gs(kPieces);
   const std::vector<Matrix3> Rt = transposedRotations(theta);
   for (int iteration = 0; iteration < 4; ++iteration) {
-    // Each thread's sums over a fixed share of the tracks, added in thread order: the same
-    // figures on every run with the same thread count.
-    int teams = 1;
-#pragma omp parallel
-    {
-      const int t = omp_get_thread_num(), T = omp_get_num_threads();
-      if (t == 0) teams = T;
-      Eigen::MatrixXd& H = Hs[static_cast<size_t>(t)];
-      Eigen::VectorXd& g = gs[static_cast<size_t>(t)];
+#pragma omp parallel for schedule(dynamic)
+    for (int piece = 0; piece < kPieces; ++piece) {
+      Eigen::MatrixXd& H = Hs[static_cast<size_t>(piece)];
+      Eigen::VectorXd& g = gs[static_cast<size_t>(piece)];
       H = Eigen::MatrixXd::Zero(n, n);
       g = Eigen::VectorXd::Zero(n);
       std::vector<std::pair<int, double>> phi;
-      const size_t begin = tracks.size() * t / T, end = tracks.size() * (t + 1) / T;
+      const size_t begin = tracks.size() * piece / kPieces,
+                   end = tracks.size() * (piece + 1) / kPieces;
       for (size_t i = begin; i < end; ++i) {
         const Track& tr = tracks[i];
         model.basis(tr, phi);
@@ -215,9 +213,9 @@ void fitDepth(const PinholeCamera& camera, const std::vector<Track>& tracks,
     }
     Eigen::MatrixXd H = Hs[0];
     Eigen::VectorXd g = gs[0];
-    for (int t = 1; t < teams; ++t) {
-      H += Hs[static_cast<size_t>(t)];
-      g += gs[static_cast<size_t>(t)];
+    for (int piece = 1; piece < kPieces; ++piece) {
+      H += Hs[static_cast<size_t>(piece)];
+      g += gs[static_cast<size_t>(piece)];
     }
     for (int j = 0; j < n; ++j) {
       if (support[static_cast<size_t>(j)] < 6)

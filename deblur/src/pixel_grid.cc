@@ -22,23 +22,22 @@ namespace evkit {
 
 namespace {
 
-// The sum of body(j) over j in [0, n), the range split into one block per thread and the blocks'
-// sums added in order: the same figure on every run with the same thread count (an OpenMP
-// reduction adds the threads' sums in the order they finish).
+// The sum of body(j) over j in [0, n), the range cut into kPieces pieces whatever the thread
+// count, each summed on its own and the pieces added in order: the same bits on one thread and on
+// many (an OpenMP reduction adds the threads' sums in the order they finish).
+constexpr int kPieces = 64;
 template <class Body>
 double orderedSum(std::ptrdiff_t n, Body&& body) {
-  std::vector<double> parts(static_cast<size_t>(omp_get_max_threads()), 0.0);
-  int teams = 1;
-#pragma omp parallel
-  {
-    const int t = omp_get_thread_num(), T = omp_get_num_threads();
-    if (t == 0) teams = T;
+  std::array<double, kPieces> parts{};
+#pragma omp parallel for schedule(static)
+  for (int piece = 0; piece < kPieces; ++piece) {
     double sum = 0;
-    for (std::ptrdiff_t j = n * t / T, end = n * (t + 1) / T; j < end; ++j) sum += body(j);
-    parts[static_cast<size_t>(t)] = sum;
+    for (std::ptrdiff_t j = n * piece / kPieces, end = n * (piece + 1) / kPieces; j < end; ++j)
+      sum += body(j);
+    parts[static_cast<size_t>(piece)] = sum;
   }
   double total = 0;
-  for (int t = 0; t < teams; ++t) total += parts[static_cast<size_t>(t)];
+  for (const double part : parts) total += part;
   return total;
 }
 
@@ -315,6 +314,26 @@ void PixelGridProblem::buildTaps() {
       }
     }
   }
+  // The canvas rows each block of the frame's rows reaches: its views' stencils (two rows each)
+  // and its pixels' own cells at mid-exposure.
+  const int S = options_.subdivision;
+  block_rows_.resize(kRowBlocks);
+#pragma omp parallel for schedule(static)
+  for (int block = 0; block < kRowBlocks; ++block) {
+    int first = canvas_h_, last = 0;
+    for (int y = blockBegin(block); y < blockBegin(block + 1); ++y) {
+      first = std::min(first, (y + margin_) * S);
+      last = std::max(last, (y + margin_) * S + 1);
+      const auto begin = taps_.begin() +
+                         static_cast<std::ptrdiff_t>(viewSlot(0, static_cast<size_t>(y) * W)),
+                 end = begin + static_cast<std::ptrdiff_t>(W) * views_;
+      for (auto t = begin; t != end; ++t) {
+        first = std::min(first, t->index / canvas_w_);
+        last = std::max(last, t->index / canvas_w_ + 2);
+      }
+    }
+    block_rows_[static_cast<size_t>(block)] = {first, std::max(first, last)};
+  }
 }
 
 Eigen::Vector2d PixelGridProblem::cellOf(int x, int y, const Matrix3& R, const Vector3& t,
@@ -395,7 +414,7 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
   // cells' intensities bilinearly (linear light).
   std::vector<double> slope;
   const std::vector<double> x = intensities(u, &slope);
-  const int W = camera_.width, H = camera_.height, C = channels_, V = views_;
+  const int W = camera_.width, C = channels_, V = views_;
   const size_t N = directions_.size();
   const int lag = eventLag();
   const double blur_scale = blur_weight_ / (static_cast<double>(N) * C),
@@ -403,101 +422,107 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
                window_scale = lag > 0 ? options_.beta / (static_cast<double>(N) * (V - lag)) : 0;
   const LogMapping& log = options_.log;
   if (gradient) gradient->resize(x.size());
-  // Each thread's sums, added in thread order afterwards: the same figures on every run with the
-  // same thread count.
-  const int threads = omp_get_max_threads();
-  std::vector<std::vector<double>> partial(gradient ? static_cast<size_t>(threads) : 0);
-  std::vector<double> blur_sums(static_cast<size_t>(threads), 0.0),
-      event_sums(static_cast<size_t>(threads), 0.0);
+  // Each row block's sums and gradient on its own (block_rows_), added in block order.
+  const auto row = static_cast<size_t>(canvas_w_) * C;
+  std::vector<std::vector<double>> partial(gradient ? kRowBlocks : 0);
+  std::array<double, kRowBlocks> blur_sums{}, event_sums{};
 #pragma omp parallel
   {
-    double& blur_sum = blur_sums[static_cast<size_t>(omp_get_thread_num())];
-    double& event_sum = event_sums[static_cast<size_t>(omp_get_thread_num())];
-    std::vector<double>* g = nullptr;
-    if (gradient) {
-      auto& mine = partial[static_cast<size_t>(omp_get_thread_num())];
-      mine.assign(x.size(), 0.0);
-      g = &mine;
-    }
     std::vector<double> colour(static_cast<size_t>(V) * C), d_grey(static_cast<size_t>(V)),
         logs(static_cast<size_t>(V)), greys(static_cast<size_t>(V)),
         reference(static_cast<size_t>(V) + 1), d_reference(static_cast<size_t>(V) + 1),
         d_level(static_cast<size_t>(V) + 1);
     const int M = referencePlays();
     std::vector<int> source(static_cast<size_t>(V + 1) * M);
-#pragma omp for schedule(static)
-    for (int y = 0; y < H; ++y) {
-      for (int px = 0; px < W; ++px) {
-        const size_t pixel = static_cast<size_t>(y) * W + px;
-        const int S = options_.subdivision;
-        const size_t mid =
-            (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
-        const double mid_grey = std::max(0.0, nerf::greyOf(&x[mid], C));
-        const double mid_log = log.logOf(mid_grey);
-        double sum[3] = {0, 0, 0};
-        for (int k = 0; k < V; ++k) {
-          const auto ki = static_cast<size_t>(k);
-          double* out = &colour[ki * C];
-          sample(x.data(), canvas_w_, C, taps_[viewSlot(k, pixel)], out);
-          for (int c = 0; c < C; ++c) sum[c] += out[c];
-          greys[ki] = std::max(0.0, nerf::greyOf(out, C));
-          logs[ki] = log.logOf(greys[ki]);
-        }
-        // Each view against mid-exposure (robust), and each view `lag` views on against it
-        // (squares): the change of the sensor's reference level against the events in between
-        // (the change since mid telescopes). Each reference is the mean of its plays' levels of
-        // their source samples (index V: mid), which take its gradient.
-        const bool held = !held_out_.empty() && held_out_[pixel];
-        referenceLevels(logs.data(), mid_log, reference.data(), source.data());
-        std::fill(d_reference.begin(), d_reference.end(), 0.0);
-        for (int k = 0; k < V && !held; ++k) {
-          const auto a = static_cast<size_t>(k);
-          const double r =
-              reference[a] - reference[static_cast<size_t>(V)] - change_[viewSlot(k, pixel)];
-          double weight;
-          event_sum += event_scale * eventPenalty(r, &weight);
-          const double d = 2 * event_scale * weight * r;
-          d_reference[a] += d;
-          d_reference[static_cast<size_t>(V)] -= d;
-          if (lag == 0 || k + lag >= V) continue;
-          const auto b = static_cast<size_t>(k + lag);
-          const double rw = reference[b] - change_[viewSlot(k + lag, pixel)] -
-                            (reference[a] - change_[viewSlot(k, pixel)]);
-          event_sum += window_scale * rw * rw;
-          const double dw = 2 * window_scale * rw;
-          d_reference[b] += dw;
-          d_reference[a] -= dw;
-        }
-        referenceGradient(d_reference.data(), source.data(), d_level.data());
-        const double d_mid_log = d_level[static_cast<size_t>(V)];
-        for (int k = 0; k < V; ++k) {
-          const auto a = static_cast<size_t>(k);
-          d_grey[a] = d_level[a] * log.logSlope(greys[a]);
-        }
-        double d_sum[3] = {0, 0, 0};
-        for (int c = 0; c < C; ++c) {
-          const double r = blurResidual(sum[c] / V, blurry_.ptr<float>(y)[px * C + c]);
-          blur_sum += r * r;
-          d_sum[c] = 2 * blur_scale * r / V;
-        }
-        if (!g) continue;
-        double d_colour[3];
-        for (int k = 0; k < V; ++k) {
-          nerf::greyBackward(d_grey[static_cast<size_t>(k)], C, d_colour);
-          for (int c = 0; c < C; ++c) d_colour[c] += d_sum[c];
-          sampleBackward(g->data(), canvas_w_, C, taps_[viewSlot(k, pixel)], d_colour);
-        }
-        nerf::greyBackward(d_mid_log * log.logSlope(mid_grey), C, d_colour);
-        for (int c = 0; c < C; ++c) (*g)[mid + c] += d_colour[c];
+#pragma omp for schedule(dynamic)
+    for (int block = 0; block < kRowBlocks; ++block) {
+      const auto bi = static_cast<size_t>(block);
+      double blur_sum = 0, event_sum = 0;
+      // The block's gradient over the canvas rows it reaches: a stencil's index less the cells of
+      // the rows before the first.
+      double* g = nullptr;
+      const int skipped = block_rows_[bi][0] * canvas_w_;
+      if (gradient) {
+        partial[bi].assign(static_cast<size_t>(block_rows_[bi][1] - block_rows_[bi][0]) * row, 0.0);
+        g = partial[bi].data();
       }
+      for (int y = blockBegin(block); y < blockBegin(block + 1); ++y) {
+        for (int px = 0; px < W; ++px) {
+          const size_t pixel = static_cast<size_t>(y) * W + px;
+          const int S = options_.subdivision;
+          const size_t mid =
+              (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
+          const double mid_grey = std::max(0.0, nerf::greyOf(&x[mid], C));
+          const double mid_log = log.logOf(mid_grey);
+          double sum[3] = {0, 0, 0};
+          for (int k = 0; k < V; ++k) {
+            const auto ki = static_cast<size_t>(k);
+            double* out = &colour[ki * C];
+            sample(x.data(), canvas_w_, C, taps_[viewSlot(k, pixel)], out);
+            for (int c = 0; c < C; ++c) sum[c] += out[c];
+            greys[ki] = std::max(0.0, nerf::greyOf(out, C));
+            logs[ki] = log.logOf(greys[ki]);
+          }
+          // Each view against mid-exposure (robust), and each view `lag` views on against it
+          // (squares): the change of the sensor's reference level against the events in between
+          // (the change since mid telescopes). Each reference is the mean of its plays' levels of
+          // their source samples (index V: mid), which take its gradient.
+          const bool held = !held_out_.empty() && held_out_[pixel];
+          referenceLevels(logs.data(), mid_log, reference.data(), source.data());
+          std::fill(d_reference.begin(), d_reference.end(), 0.0);
+          for (int k = 0; k < V && !held; ++k) {
+            const auto a = static_cast<size_t>(k);
+            const double r =
+                reference[a] - reference[static_cast<size_t>(V)] - change_[viewSlot(k, pixel)];
+            double weight;
+            event_sum += event_scale * eventPenalty(r, &weight);
+            const double d = 2 * event_scale * weight * r;
+            d_reference[a] += d;
+            d_reference[static_cast<size_t>(V)] -= d;
+            if (lag == 0 || k + lag >= V) continue;
+            const auto b = static_cast<size_t>(k + lag);
+            const double rw = reference[b] - change_[viewSlot(k + lag, pixel)] -
+                              (reference[a] - change_[viewSlot(k, pixel)]);
+            event_sum += window_scale * rw * rw;
+            const double dw = 2 * window_scale * rw;
+            d_reference[b] += dw;
+            d_reference[a] -= dw;
+          }
+          referenceGradient(d_reference.data(), source.data(), d_level.data());
+          const double d_mid_log = d_level[static_cast<size_t>(V)];
+          for (int k = 0; k < V; ++k) {
+            const auto a = static_cast<size_t>(k);
+            d_grey[a] = d_level[a] * log.logSlope(greys[a]);
+          }
+          double d_sum[3] = {0, 0, 0};
+          for (int c = 0; c < C; ++c) {
+            const double r = blurResidual(sum[c] / V, blurry_.ptr<float>(y)[px * C + c]);
+            blur_sum += r * r;
+            d_sum[c] = 2 * blur_scale * r / V;
+          }
+          if (!g) continue;
+          double d_colour[3];
+          for (int k = 0; k < V; ++k) {
+            nerf::greyBackward(d_grey[static_cast<size_t>(k)], C, d_colour);
+            for (int c = 0; c < C; ++c) d_colour[c] += d_sum[c];
+            Taps t = taps_[viewSlot(k, pixel)];
+            t.index -= skipped;
+            sampleBackward(g, canvas_w_, C, t, d_colour);
+          }
+          nerf::greyBackward(d_mid_log * log.logSlope(mid_grey), C, d_colour);
+          for (int c = 0; c < C; ++c) g[mid - static_cast<size_t>(skipped) * C + c] += d_colour[c];
+        }
+      }
+      blur_sums[bi] = blur_sum;
+      event_sums[bi] = event_sum;
     }
   }
   double blur_sum = 0, event_sum = 0;
-  for (int t = 0; t < threads; ++t) {
-    blur_sum += blur_sums[static_cast<size_t>(t)];
-    event_sum += event_sums[static_cast<size_t>(t)];
+  for (int block = 0; block < kRowBlocks; ++block) {
+    blur_sum += blur_sums[static_cast<size_t>(block)];
+    event_sum += event_sums[static_cast<size_t>(block)];
   }
-  // The threads' gradients added, through the log mapping to the unknowns, and the smoothness of
+  // The blocks' gradients added, through the log mapping to the unknowns, and the smoothness of
   // the log image between neighbouring cells (sub-pixel detail only where the data asks for it),
   // each cell's share of the squared differences to its right and lower neighbours and its
   // gradient from all four. In colour the chroma (each channel's log less the channels' mean) is
@@ -505,7 +530,6 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
   // term holds it.
   const double scale = options_.smoothness / static_cast<double>(u.size());
   const double chroma = C > 1 ? options_.chroma_smoothness / static_cast<double>(u.size()) : 0.0;
-  const auto row = static_cast<size_t>(canvas_w_) * C;
   // The penalty's derivative with respect to the difference u[b + c] - u[a + c] of two
   // neighbouring cells a and b, in each channel; adds the penalty to `sum`.
   const auto pair = [&](size_t a, size_t b, double* d_pair, double& sum) {
@@ -549,7 +573,10 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
       if (!gradient) continue;
       for (int c = 0; c < C; ++c) {
         double sum = 0;
-        for (const auto& p : partial) sum += p[a + c];
+        for (size_t block = 0; block < partial.size(); ++block) {
+          const auto [first, last] = block_rows_[block];
+          if (j >= first && j < last) sum += partial[block][a - first * row + c];
+        }
         (*gradient)[a + c] = sum * slope[a + c] + d_smooth[c];
       }
     }
@@ -721,19 +748,17 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
     for (int j = 0; j < 6; ++j)
       moved[i][static_cast<size_t>(j)] = poses[i] * expSE3(Vector6::Unit(j) * h);
   }
-  const int threads = omp_get_max_threads();
-  std::vector<Eigen::MatrixXd> hessians(static_cast<size_t>(threads),
-                                        Eigen::MatrixXd::Zero(dim, dim));
-  std::vector<Eigen::VectorXd> gradients(static_cast<size_t>(threads), Eigen::VectorXd::Zero(dim));
+  // Each row block's sums on their own (kRowBlocks), added in block order.
+  std::vector<Eigen::MatrixXd> hessians(kRowBlocks, Eigen::MatrixXd::Zero(dim, dim));
+  std::vector<Eigen::VectorXd> gradients(kRowBlocks, Eigen::VectorXd::Zero(dim));
+  const int rows = (H + stride - 1) / stride;  // every stride-th row
 #pragma omp parallel
   {
-    Eigen::MatrixXd& Hl = hessians[static_cast<size_t>(omp_get_thread_num())];
-    Eigen::VectorXd& bl = gradients[static_cast<size_t>(omp_get_thread_num())];
-    std::vector<Matrix6> He(static_cast<size_t>(V), Matrix6::Zero());  // event term, per view
+    std::vector<Matrix6> He(static_cast<size_t>(V));  // event term, per view
     // The event term's blocks between two views (a comparison whose references come from more than
     // one view), [a * V + b] for a != b.
     std::vector<Matrix6> cross;
-    std::vector<Vector6> be(static_cast<size_t>(V), Vector6::Zero());
+    std::vector<Vector6> be(static_cast<size_t>(V));
     std::array<Eigen::VectorXd, 3> jb;  // d (mean of the views) / d knots, per channel
     // Per view: its log level and that level's derivative in its pose (0 where it is dark), and
     // the sensor's reference levels (referenceLevels).
@@ -756,126 +781,136 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
           same->second += share / M;
       }
     };
-#pragma omp for schedule(static) nowait
-    for (int y = 0; y < H; y += stride) {
-      for (int px = 0; px < W; px += stride) {
-        const size_t pixel = static_cast<size_t>(y) * W + px;
-        const size_t mid =
-            (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
-        const double mid_log = log.logOf(std::max(0.0, nerf::greyOf(&x[mid], C)));
-        double sum[3] = {0, 0, 0};
-        for (int c = 0; c < C; ++c) jb[static_cast<size_t>(c)] = Eigen::VectorXd::Zero(dim);
-        for (int k = 0; k < V; ++k) {
-          const auto ki = static_cast<size_t>(k);
-          double rho;
-          const Eigen::Vector2d q = cellOf(px, y, rotations[ki], poses[ki].translation(), &rho);
-          const Taps t = tapsAt(cellCoordinate(q.x()), cellCoordinate(q.y()), canvas_w_, canvas_h_);
-          const double* a = x.data() + static_cast<size_t>(t.index) * C;
-          const double* b = a + static_cast<size_t>(canvas_w_) * C;
-          double value[3], du[3], dv[3];
-          for (int c = 0; c < C; ++c) {
-            value[c] = (1 - t.ay) * ((1 - t.ax) * a[c] + t.ax * a[C + c]) +
-                       t.ay * ((1 - t.ax) * b[c] + t.ax * b[C + c]);
-            du[c] = S * ((1 - t.ay) * (a[C + c] - a[c]) + t.ay * (b[C + c] - b[c]));
-            dv[c] = S * ((1 - t.ax) * (b[c] - a[c]) + t.ax * (b[C + c] - a[C + c]));
-            sum[c] += value[c];
+#pragma omp for schedule(dynamic)
+    for (int block = 0; block < kRowBlocks; ++block) {
+      Eigen::MatrixXd& Hl = hessians[static_cast<size_t>(block)];
+      Eigen::VectorXd& bl = gradients[static_cast<size_t>(block)];
+      std::fill(He.begin(), He.end(), Matrix6::Zero());
+      std::fill(be.begin(), be.end(), Vector6::Zero());
+      std::fill(cross.begin(), cross.end(), Matrix6::Zero());
+      for (int y = rows * block / kRowBlocks * stride; y < rows * (block + 1) / kRowBlocks * stride;
+           y += stride) {
+        for (int px = 0; px < W; px += stride) {
+          const size_t pixel = static_cast<size_t>(y) * W + px;
+          const size_t mid =
+              (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
+          const double mid_log = log.logOf(std::max(0.0, nerf::greyOf(&x[mid], C)));
+          double sum[3] = {0, 0, 0};
+          for (int c = 0; c < C; ++c) jb[static_cast<size_t>(c)] = Eigen::VectorXd::Zero(dim);
+          for (int k = 0; k < V; ++k) {
+            const auto ki = static_cast<size_t>(k);
+            double rho;
+            const Eigen::Vector2d q = cellOf(px, y, rotations[ki], poses[ki].translation(), &rho);
+            const Taps t =
+                tapsAt(cellCoordinate(q.x()), cellCoordinate(q.y()), canvas_w_, canvas_h_);
+            const double* a = x.data() + static_cast<size_t>(t.index) * C;
+            const double* b = a + static_cast<size_t>(canvas_w_) * C;
+            double value[3], du[3], dv[3];
+            for (int c = 0; c < C; ++c) {
+              value[c] = (1 - t.ay) * ((1 - t.ax) * a[c] + t.ax * a[C + c]) +
+                         t.ay * ((1 - t.ax) * b[c] + t.ax * b[C + c]);
+              du[c] = S * ((1 - t.ay) * (a[C + c] - a[c]) + t.ay * (b[C + c] - b[c]));
+              dv[c] = S * ((1 - t.ax) * (b[c] - a[c]) + t.ax * (b[C + c] - a[C + c]));
+              sum[c] += value[c];
+            }
+            Eigen::Matrix<double, 2, 6> dq;
+            const Vector3& d = directions_[pixel];
+            for (int j = 0; j < 6; ++j) {
+              const SE3& m = moved[ki][static_cast<size_t>(j)];
+              dq.col(j) =
+                  (nerf::projectPoint(camera_, m.rotation() * d + rho * m.translation()) - q) / h;
+            }
+            const KnotJacobians& J = jacobians[ki];
+            for (int c = 0; c < C; ++c) {
+              const Vector6 dvalue = (du[c] * dq.row(0) + dv[c] * dq.row(1)).transpose() / V;
+              for (int n = 0; n < J.count; ++n) {
+                jb[static_cast<size_t>(c)].segment<6>(6 * (J.first_knot + n)) +=
+                    J.d_pose_d_knot[static_cast<size_t>(n)].transpose() * dvalue;
+              }
+            }
+            const double grey = nerf::greyOf(value, C);
+            lit[ki] = grey > 0;
+            logs[ki] = log.logOf(std::max(0.0, grey));
+            d_log[ki].setZero();
+            if (!lit[ki]) continue;
+            const double slope = log.logSlope(grey);
+            d_log[ki] =
+                (slope * nerf::greyOf(du, C) * dq.row(0) + slope * nerf::greyOf(dv, C) * dq.row(1))
+                    .transpose();
           }
-          Eigen::Matrix<double, 2, 6> dq;
-          const Vector3& d = directions_[pixel];
-          for (int j = 0; j < 6; ++j) {
-            const SE3& m = moved[ki][static_cast<size_t>(j)];
-            dq.col(j) =
-                (nerf::projectPoint(camera_, m.rotation() * d + rho * m.translation()) - q) / h;
-          }
-          const KnotJacobians& J = jacobians[ki];
-          for (int c = 0; c < C; ++c) {
-            const Vector6 dvalue = (du[c] * dq.row(0) + dv[c] * dq.row(1)).transpose() / V;
-            for (int n = 0; n < J.count; ++n) {
-              jb[static_cast<size_t>(c)].segment<6>(6 * (J.first_knot + n)) +=
-                  J.d_pose_d_knot[static_cast<size_t>(n)].transpose() * dvalue;
+          // Each view's comparison with mid-exposure moves with the poses of its reference's
+          // sources less those of mid-exposure's: its derivative is a sum over views of a share of
+          // each one's d_log, which gives the blocks of each view and of each pair of views.
+          referenceLevels(logs.data(), mid_log, reference.data(), source.data());
+          for (int k = 0; k < V; ++k) {
+            const auto ki = static_cast<size_t>(k);
+            if (!lit[ki]) continue;
+            terms.clear();
+            addSources(k, 1.0);
+            addSources(V, -1.0);
+            const double r =
+                reference[ki] - reference[static_cast<size_t>(V)] - change_[viewSlot(k, pixel)];
+            double weight;
+            eventPenalty(r, &weight);  // iteratively reweighted: the penalty's gradient is 2 w r
+            const double w = event_scale * weight;
+            for (size_t p = 0; p < terms.size(); ++p) {
+              const auto v = static_cast<size_t>(terms[p].first);
+              const Vector6 a = terms[p].second * d_log[v];
+              if (a.isZero(0)) continue;
+              He[v] += w * a * a.transpose();
+              be[v] += w * a * r;
+              for (size_t q = p + 1; q < terms.size(); ++q) {
+                const auto u = static_cast<size_t>(terms[q].first);
+                if (cross.empty()) cross.assign(static_cast<size_t>(V) * V, Matrix6::Zero());
+                cross[v * V + u] += w * a * (terms[q].second * d_log[u]).transpose();
+              }
             }
           }
-          const double grey = nerf::greyOf(value, C);
-          lit[ki] = grey > 0;
-          logs[ki] = log.logOf(std::max(0.0, grey));
-          d_log[ki].setZero();
-          if (!lit[ki]) continue;
-          const double slope = log.logSlope(grey);
-          d_log[ki] =
-              (slope * nerf::greyOf(du, C) * dq.row(0) + slope * nerf::greyOf(dv, C) * dq.row(1))
-                  .transpose();
-        }
-        // Each view's comparison with mid-exposure moves with the poses of its reference's
-        // sources less those of mid-exposure's: its derivative is a sum over views of a share of
-        // each one's d_log, which gives the blocks of each view and of each pair of views.
-        referenceLevels(logs.data(), mid_log, reference.data(), source.data());
-        for (int k = 0; k < V; ++k) {
-          const auto ki = static_cast<size_t>(k);
-          if (!lit[ki]) continue;
-          terms.clear();
-          addSources(k, 1.0);
-          addSources(V, -1.0);
-          const double r =
-              reference[ki] - reference[static_cast<size_t>(V)] - change_[viewSlot(k, pixel)];
-          double weight;
-          eventPenalty(r, &weight);  // iteratively reweighted: the penalty's gradient is 2 w r
-          const double w = event_scale * weight;
-          for (size_t p = 0; p < terms.size(); ++p) {
-            const auto v = static_cast<size_t>(terms[p].first);
-            const Vector6 a = terms[p].second * d_log[v];
-            if (a.isZero(0)) continue;
-            He[v] += w * a * a.transpose();
-            be[v] += w * a * r;
-            for (size_t q = p + 1; q < terms.size(); ++q) {
-              const auto u = static_cast<size_t>(terms[q].first);
-              if (cross.empty()) cross.assign(static_cast<size_t>(V) * V, Matrix6::Zero());
-              cross[v * V + u] += w * a * (terms[q].second * d_log[u]).transpose();
-            }
+          for (int c = 0; c < C; ++c) {
+            bool flat = false;
+            const double r = blurResidual(sum[c] / V, blurry_.ptr<float>(y)[px * C + c], &flat);
+            if (flat) continue;  // flat in the motion as well
+            const Eigen::VectorXd& j = jb[static_cast<size_t>(c)];
+            Hl.noalias() += blur_scale * j * j.transpose();
+            bl += blur_scale * r * j;
           }
         }
-        for (int c = 0; c < C; ++c) {
-          bool flat = false;
-          const double r = blurResidual(sum[c] / V, blurry_.ptr<float>(y)[px * C + c], &flat);
-          if (flat) continue;  // flat in the motion as well
-          const Eigen::VectorXd& j = jb[static_cast<size_t>(c)];
-          Hl.noalias() += blur_scale * j * j.transpose();
-          bl += blur_scale * r * j;
+      }
+      for (int k = 0; k < V; ++k) {
+        const KnotJacobians& J = jacobians[static_cast<size_t>(k)];
+        for (int a = 0; a < J.count; ++a) {
+          const Eigen::Index ia = 6 * (J.first_knot + a);
+          const Matrix6& Ja = J.d_pose_d_knot[static_cast<size_t>(a)];
+          bl.segment<6>(ia) += Ja.transpose() * be[static_cast<size_t>(k)];
+          for (int b = 0; b < J.count; ++b) {
+            Hl.block<6, 6>(ia, 6 * (J.first_knot + b)) += Ja.transpose() *
+                                                          He[static_cast<size_t>(k)] *
+                                                          J.d_pose_d_knot[static_cast<size_t>(b)];
+          }
         }
       }
-    }
-    for (int k = 0; k < V; ++k) {
-      const KnotJacobians& J = jacobians[static_cast<size_t>(k)];
-      for (int a = 0; a < J.count; ++a) {
-        const Eigen::Index ia = 6 * (J.first_knot + a);
-        const Matrix6& Ja = J.d_pose_d_knot[static_cast<size_t>(a)];
-        bl.segment<6>(ia) += Ja.transpose() * be[static_cast<size_t>(k)];
-        for (int b = 0; b < J.count; ++b) {
-          Hl.block<6, 6>(ia, 6 * (J.first_knot + b)) +=
-              Ja.transpose() * He[static_cast<size_t>(k)] * J.d_pose_d_knot[static_cast<size_t>(b)];
-        }
-      }
-    }
-    // The blocks between two views, and their transposes.
-    for (size_t pair = 0; pair < cross.size(); ++pair) {
-      const Matrix6& between = cross[pair];
-      if (between.isZero(0)) continue;
-      const KnotJacobians& J1 = jacobians[pair / static_cast<size_t>(V)];
-      const KnotJacobians& J2 = jacobians[pair % static_cast<size_t>(V)];
-      for (int a = 0; a < J1.count; ++a) {
-        for (int b = 0; b < J2.count; ++b) {
-          const Matrix6 block = J1.d_pose_d_knot[static_cast<size_t>(a)].transpose() * between *
-                                J2.d_pose_d_knot[static_cast<size_t>(b)];
-          Hl.block<6, 6>(6 * (J1.first_knot + a), 6 * (J2.first_knot + b)) += block;
-          Hl.block<6, 6>(6 * (J2.first_knot + b), 6 * (J1.first_knot + a)) += block.transpose();
+      // The blocks between two views, and their transposes.
+      for (size_t pair = 0; pair < cross.size(); ++pair) {
+        const Matrix6& between = cross[pair];
+        if (between.isZero(0)) continue;
+        const KnotJacobians& J1 = jacobians[pair / static_cast<size_t>(V)];
+        const KnotJacobians& J2 = jacobians[pair % static_cast<size_t>(V)];
+        for (int a = 0; a < J1.count; ++a) {
+          for (int b = 0; b < J2.count; ++b) {
+            const Matrix6 product = J1.d_pose_d_knot[static_cast<size_t>(a)].transpose() * between *
+                                    J2.d_pose_d_knot[static_cast<size_t>(b)];
+            Hl.block<6, 6>(6 * (J1.first_knot + a), 6 * (J2.first_knot + b)) += product;
+            Hl.block<6, 6>(6 * (J2.first_knot + b), 6 * (J1.first_knot + a)) += product.transpose();
+          }
         }
       }
     }
   }
   hessian = Eigen::MatrixXd::Zero(dim, dim);
   gradient = Eigen::VectorXd::Zero(dim);
-  for (int t = 0; t < threads; ++t) {  // in thread order, as in evaluate
-    hessian += hessians[static_cast<size_t>(t)];
-    gradient += gradients[static_cast<size_t>(t)];
+  for (int block = 0; block < kRowBlocks; ++block) {
+    hessian += hessians[static_cast<size_t>(block)];
+    gradient += gradients[static_cast<size_t>(block)];
   }
 }
 

@@ -528,14 +528,19 @@ TEST(Benerf, PrefitFitsEdisLatentFrames) {
   EXPECT_GT(r.timings_s.at("prefit"), 0.0);
 }
 
-TEST(Benerf, DeterministicWithOneThreadAndASeed) {
+// The same seed gives the same bits at one thread and at two (the hash field's and Adam's sums
+// over fixed pieces, Fields.HashFieldAndAdamGiveTheSameBitsOnOneThreadAndTwo); another seed
+// differs.
+TEST(Benerf, DeterministicForASeedAtAnyThreadCount) {
   const Observation& obs = tinyScene();
   BenerfOptions o = smallBudget();
   o.iterations = 30;
   o.threads = 1;
   const DeblurRequest request{{obs.blurry.midExposure()}, {}};
-  const DeblurResult a = BenerfDeblurrer(o).run(obs, request),
-                     b = BenerfDeblurrer(o).run(obs, request);
+  const DeblurResult a = BenerfDeblurrer(o).run(obs, request);
+  o.threads = 2;
+  const DeblurResult b = BenerfDeblurrer(o).run(obs, request);
+  o.threads = 1;
   EXPECT_EQ(cv::norm(a.frames[0].image, b.frames[0].image, cv::NORM_INF), 0.0);
   EXPECT_EQ(a.curve, b.curve);
   o.seed = 2;
@@ -583,6 +588,7 @@ TEST(Benerf, ResumingFromACheckpointContinuesTheSameRun) {
   BenerfDeblurrer(first).run(obs, request);
   BenerfOptions second = o;
   second.resume = first.checkpoint;
+  second.threads = 2;  // the same bits at another thread count
   const DeblurResult resumed = BenerfDeblurrer(second).run(obs, request);
   EXPECT_EQ(cv::norm(whole.frames[0].image, resumed.frames[0].image, cv::NORM_INF), 0.0);
   EXPECT_FALSE(std::filesystem::exists(first.checkpoint + ".partial"));
@@ -793,11 +799,12 @@ TEST(PixelGrid, HeldOutPixelsLeaveTheEventTermAndAreScoredApart) {
   EXPECT_GT(held, 0.0);
 }
 
-// The grid's solve adds its sums (the loss, the gradient, the L-BFGS recursion's dot products) in a
-// fixed order: two runs at the same thread count give the same image to the last bit, and the loss
-// falls. Three threads, where an OpenMP reduction's order of arrival would show.
-TEST(PixelGrid, SameImageOnEveryRunAtTheSameThreadCount) {
-  const Threads three(3);
+// The grid's solve adds its sums (the loss, the gradient, the L-BFGS recursion's dot products, the
+// motion's normal equations) over pieces of the work fixed whatever the thread count, in a fixed
+// order: one, two and three threads give the same image and motion gradient to the last bit, and
+// the loss falls. Three threads on two cores, where an OpenMP reduction's order of arrival would
+// show.
+TEST(PixelGrid, SameImageAtEveryThreadCount) {
   const GridScene scene = gridScene(true);
   PixelGridOptions o;
   o.subdivision = 2;
@@ -805,7 +812,10 @@ TEST(PixelGrid, SameImageOnEveryRunAtTheSameThreadCount) {
   const PixelGridProblem problem(scene.obs, scene.camera, scene.motion, cv::Mat(),
                                  Contrast{0.2, 0.25}, o);
   std::vector<std::vector<double>> runs;
-  for (int run = 0; run < 2; ++run) {
+  std::vector<Eigen::VectorXd> motion_gradients;
+  for (const int threads : {1, 2, 3}) {
+    SCOPED_TRACE(std::to_string(threads) + " threads");
+    const Threads count(threads);
     std::vector<double> x = problem.start(scene.obs.blurry.image);
     const double before = problem.evaluate(x, nullptr);
     std::vector<double> losses;
@@ -814,9 +824,14 @@ TEST(PixelGrid, SameImageOnEveryRunAtTheSameThreadCount) {
               12);
     ASSERT_EQ(losses.size(), 12u);
     EXPECT_LT(losses.back(), 0.85 * before);  // measured 0.79
+    motion_gradients.push_back(problem.motionGradient(x));
     runs.push_back(std::move(x));
   }
   EXPECT_EQ(runs[0], runs[1]);
+  EXPECT_EQ(runs[0], runs[2]);
+  EXPECT_GT(motion_gradients[0].norm(), 0.0);
+  EXPECT_TRUE(motion_gradients[0] == motion_gradients[1]);
+  EXPECT_TRUE(motion_gradients[0] == motion_gradients[2]);
 }
 
 // With `converged`, the solve stops at the first step where the loss fell by less than that
@@ -1318,6 +1333,36 @@ TEST(Benerf, PixelGridTakesOneViewPerPixelOfBlurUpToItsBoundOrTheViewsSetting) {
             std::ceil(blur_px) + 1);
   o.virtual_views = 12;
   EXPECT_EQ(BenerfDeblurrer(o).run(obs, request).parameters.at("virtual_views"), 12.0);
+}
+
+// A whole run of the grid (EDI's latent frames, the registration, the motion's refinements and the
+// solves) gives the same bits at one thread and at three: the image, the trajectory and every
+// figure of the summary but the thread count.
+TEST(Benerf, PixelGridGivesTheSameBitsAtAnyThreadCount) {
+  const Observation obs = presetObservation("planes", 15);
+  const DeblurRequest request{{obs.blurry.midExposure()}, {}};
+  BenerfOptions o = benerfBudget("fast");
+  o.iterations = 10;
+  std::vector<DeblurResult> runs;
+  for (const int threads : {1, 3}) {
+    o.threads = threads;
+    runs.push_back(BenerfDeblurrer(o).run(obs, request));
+  }
+  ASSERT_EQ(runs[0].parameters.at("representation_pixels"), 1.0);
+  ASSERT_GT(runs[0].parameters.at("registered_times"), 0.0);
+  EXPECT_EQ(runs[1].parameters.at("threads"), 3.0);
+  EXPECT_EQ(cv::norm(runs[0].frames[0].image, runs[1].frames[0].image, cv::NORM_INF), 0.0);
+  ASSERT_TRUE(runs[0].trajectory && runs[1].trajectory);
+  ASSERT_EQ(runs[0].trajectory->size(), runs[1].trajectory->size());
+  for (size_t i = 0; i < runs[0].trajectory->size(); ++i) {
+    const SE3 &a = (*runs[0].trajectory)[i].pose, &b = (*runs[1].trajectory)[i].pose;
+    EXPECT_EQ(a.translation(), b.translation());
+    EXPECT_EQ(a.rotation().coeffs(), b.rotation().coeffs());
+  }
+  for (const auto& [name, value] : runs[0].parameters) {
+    if (name == "threads") continue;
+    EXPECT_EQ(value, runs[1].parameters.at(name)) << name;
+  }
 }
 
 // The grid's smoothness chosen by held-out events (BenerfOptions::smooth = 0): on the textured

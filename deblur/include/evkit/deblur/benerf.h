@@ -204,8 +204,8 @@ struct BenerfOptions {
                               // and renders) fits this wall time
   uint64_t seed = 1;
   // 0: OpenMP's default (every core, or OMP_NUM_THREADS); kThreadsFromLoad: the cores that other
-  // programs leave idle, measured before the run (cores.h). The figures are the same bit for bit on
-  // every run with the same thread count, not across counts.
+  // programs leave idle, measured before the run (cores.h). With the pixel grid and the hash field
+  // the figures are the same bit for bit at any thread count (the MLP's at one count).
   int threads = 0;
   LogMapping log;
   // Checkpoint: written every checkpoint_every iterations and at the end when a path is given;

@@ -4,6 +4,7 @@
 
 #include <Eigen/Core>
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <functional>
@@ -134,7 +135,12 @@ class PixelGridProblem {
   // inverse depth it took.
   Eigen::Vector2d cellOf(int x, int y, const Matrix3& R, const Vector3& t,
                          double* rho_used = nullptr) const;
-  void buildTaps();  // every view's stencils from the motion
+  void buildTaps();  // every view's stencils from the motion, and block_rows_
+  // The frame's rows in kRowBlocks blocks whatever the thread count: each block's sums and its
+  // share of the gradient (over the canvas rows its views reach, block_rows_) are its own, and the
+  // blocks are added in order, so that one thread and many give the same bits.
+  static constexpr int kRowBlocks = 16;
+  int blockBegin(int block) const { return camera_.height * block / kRowBlocks; }
   // The event term's window in views (0: against mid-exposure).
   int eventLag() const {
     if (!(options_.event_window > 0)) return 0;
@@ -191,8 +197,9 @@ class PixelGridProblem {
   // Per pixel and view, a pixel's views side by side (viewSlot): the loss reads them pixel by
   // pixel.
   std::vector<CanvasTaps> taps_;
-  std::vector<float> change_;           // the events' log change since mid-exposure
-  std::vector<uint8_t> held_out_;       // per pixel, when some are held out (holdOutEvents)
+  std::vector<std::array<int, 2>> block_rows_;  // per row block, the canvas rows [first, last)
+  std::vector<float> change_;                   // the events' log change since mid-exposure
+  std::vector<uint8_t> held_out_;               // per pixel, when some are held out (holdOutEvents)
   double band_up_ = 0, band_down_ = 0;  // the reference's play (PixelGridOptions::hysteresis)
   int mid_slot_ = 0;                    // mid-exposure's place among the views in time order
   cv::Mat blurry_;
