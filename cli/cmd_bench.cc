@@ -75,7 +75,7 @@ int runBench(const Args& args) {
       "budgets of BeNeRF with the paper's MLP (benerf-mlp)")(
       "set", po::value<std::vector<std::string>>()->composing(),
       "METHOD.KEY=VALUE added to every run of METHOD (e.g. benerf.seed=2)")(
-      "threads", po::value<int>(), "BeNeRF threads (default: all cores)")(
+      "threads", po::value<int>(), "BeNeRF threads (default: the cores other programs leave idle)")(
       "unknown-contrast", po::bool_switch(),
       "the methods are not given the thresholds (contrast.txt), as with real data: EDI searches c, "
       "BeNeRF estimates them the same way")("rerun", po::bool_switch(),

@@ -75,8 +75,8 @@ int runDemo(const Args& args) {
       "clean-events", po::bool_switch(),
       "noiseless events with exactly known thresholds (default: a DAVIS-like sensor's noise)")(
       "budget", po::value<std::string>()->default_value("fast"),
-      "BeNeRF budget: fast, balanced, quality or seconds")("threads", po::value<int>(),
-                                                           "BeNeRF threads (default: all cores)")(
+      "BeNeRF budget: fast, balanced, quality or seconds")(
+      "threads", po::value<int>(), "BeNeRF threads (default: the cores other programs leave idle)")(
       "seed", po::value<uint64_t>()->default_value(1),
       "seed of the scene, the shake and the training")(
       "formats", po::bool_switch(),

@@ -209,8 +209,8 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
         .number("lr_final", &O::lr_final, positive, "the fraction both learning rates decay to")
         .integer("seed", &O::seed, {0}, "random seed")
         .custom({"threads", "N|auto",
-                 "threads (0: OpenMP's default, every core; auto: the cores other programs leave "
-                 "idle, measured at the start)",
+                 "threads (auto: the cores other programs leave idle, measured at the start and "
+                 "followed through the run; 0: OpenMP's default, every core)",
                  [](O& o, const std::string& v) {
                    if (v == "auto") {
                      o.threads = kThreadsFromLoad;

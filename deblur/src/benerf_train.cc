@@ -12,6 +12,7 @@
 #include <numbers>
 #include <opencv2/imgproc.hpp>
 #include <optional>
+#include <thread>
 #include <vector>
 
 #include "benerf_checkpoint.h"
@@ -60,17 +61,25 @@ const Frame* midGroundTruth(const Observation& obs) {
 }
 
 // Sets OpenMP's thread count for one run and restores it afterwards: `threads`, or at
-// kThreadsFromLoad the cores that other programs leave idle (measured over kLoadWindow before the
-// run: a step waits for its slowest thread, and a thread that shares its core with a busy program
-// holds back all). The count run on, and the load measured, go to the result's parameters.
+// kThreadsFromLoad the cores that other programs leave idle (a step waits for its slowest thread,
+// and a thread that shares its core with a busy program holds back all): measured over kLoadWindow
+// before the run, then again at most every kFollowEvery between the training's steps (follow), so
+// that a load that comes or goes during the run moves the count (the figures are the same at any
+// count). The count the run starts on, and the load measured, go to the result's parameters, and
+// each change of the count as `thread_changes` and `threads_last`.
 class ThreadScope {
  public:
-  ThreadScope(int threads, DeblurResult& result) : saved_(omp_get_max_threads()) {
+  ThreadScope(int threads, DeblurResult& result) : saved_(omp_get_max_threads()), result_(result) {
     if (threads == kThreadsFromLoad) {
       threads = 0;
-      if (const std::optional<CoreLoad> load = measureCoreLoad(kLoadWindow)) {
+      follower_.emplace();
+      std::this_thread::sleep_for(kLoadWindow);
+      if (const std::optional<CoreLoad> load = follower_->measure(kLoadWindow)) {
         threads = threadsForLoad(*load, saved_);
         result.parameters["busy_cores_elsewhere"] = load->busy_elsewhere;
+        result.parameters["thread_changes"] = 0;
+      } else {
+        follower_.reset();  // nothing to follow (not Linux)
       }
     }
     if (threads > 0) omp_set_num_threads(threads);
@@ -80,10 +89,26 @@ class ThreadScope {
   ThreadScope(const ThreadScope&) = delete;
   ThreadScope& operator=(const ThreadScope&) = delete;
 
+  bool following() const { return follower_.has_value(); }
+  // At kThreadsFromLoad, the count for the load since the last measurement, once kFollowEvery has
+  // passed since it.
+  void follow() {
+    if (!follower_) return;
+    const std::optional<CoreLoad> load = follower_->measure(kFollowEvery);
+    if (!load) return;
+    const int threads = threadsForLoad(*load, saved_);
+    if (threads == omp_get_max_threads()) return;
+    omp_set_num_threads(threads);
+    result_.parameters["thread_changes"] += 1;
+    result_.parameters["threads_last"] = threads;
+  }
+
  private:
   // Ten of /proc/stat's ticks: the load to a tenth of a core, 1% of a frame at `fast`.
-  static constexpr std::chrono::milliseconds kLoadWindow{100};
+  static constexpr std::chrono::milliseconds kLoadWindow{100}, kFollowEvery{1000};
   int saved_;
+  DeblurResult& result_;
+  std::optional<LoadFollower> follower_;
 };
 
 // What the run starts from: the thresholds (given, from contrast.txt, or estimated by EDI's search
@@ -770,7 +795,16 @@ DeblurResult BenerfDeblurrer::run(const Observation& given, const DeblurRequest&
   const auto start = Clock::now();
   DeblurResult result;
   result.parameters["frame_grey"] = 0;
-  const ThreadScope threads(options_.threads, result);
+  ThreadScope threads(options_.threads, result);
+  // The caller's progress, and at threads=auto the thread count following the load.
+  DeblurRequest followed = request;
+  if (threads.following()) {
+    followed.progress = [&threads, &request](int done, int total, double loss) {
+      threads.follow();
+      if (request.progress) request.progress(done, total, loss);
+    };
+  }
+  const DeblurRequest& req = threads.following() ? followed : request;
   Start s = prepare(given, options_, result);
   const BenerfOptions& o = s.options;
   // Every later step sees the camera the run uses (an estimated one replaces the assumed).
@@ -792,7 +826,7 @@ DeblurResult BenerfDeblurrer::run(const Observation& given, const DeblurRequest&
         "benerf: checkpoint and resume are for field=hash and field=mlp (the pixel grid is solved "
         "in one go)");
   if (o.field == BenerfOptions::FieldKind::kPixels && !s.motion.poses.empty() &&
-      runPixelGrid(obs, request, s, start, result)) {
+      runPixelGrid(obs, req, s, start, result)) {
     result.parameters["representation_pixels"] = 1;
     result.timings_s["total"] = secondsSince(start);
     return result;
@@ -823,9 +857,9 @@ DeblurResult BenerfDeblurrer::run(const Observation& given, const DeblurRequest&
   if (o.prefit > 0 && o.resume.empty()) prefit(obs, problem, optimisers, o, result);
   result.timings_s["setup"] = secondsSince(start);
 
-  Training training(obs, request, problem, optimisers, o, start);
+  Training training(obs, req, problem, optimisers, o, start);
   iterations = training.run(first, iterations, rng, result);
-  renderResults(obs, request, problem, result);
+  renderResults(obs, req, problem, result);
   summarise(problem, o, iterations, training, result);
   result.timings_s["total"] = secondsSince(start);
   return result;

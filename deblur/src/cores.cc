@@ -9,7 +9,6 @@
 #include <cmath>
 #include <fstream>
 #include <sstream>
-#include <thread>
 
 namespace evkit {
 
@@ -73,21 +72,30 @@ std::optional<CoreLoad> coreLoadBetween(const std::map<int, CpuTicks>& before,
   return load;
 }
 
-std::optional<CoreLoad> measureCoreLoad(std::chrono::milliseconds window) {
+LoadFollower::LoadFollower() : last_(std::chrono::steady_clock::now()) {
   cpu_set_t mask;
   CPU_ZERO(&mask);
   const long ticks_per_s = sysconf(_SC_CLK_TCK);
-  if (sched_getaffinity(0, sizeof(mask), &mask) != 0 || ticks_per_s <= 0) return std::nullopt;
-  std::vector<int> cpus;
+  if (sched_getaffinity(0, sizeof(mask), &mask) != 0 || ticks_per_s <= 0) return;
   for (int cpu = 0; cpu < CPU_SETSIZE; ++cpu)
-    if (CPU_ISSET(cpu, &mask)) cpus.push_back(cpu);
-  const auto before = readCpuTicks();
-  const double own_before = ownCpuSeconds();
-  std::this_thread::sleep_for(window);
-  const auto after = readCpuTicks();
-  const double own = ownCpuSeconds() - own_before;
-  if (!before || !after) return std::nullopt;
-  return coreLoadBetween(*before, *after, cpus, own * ticks_per_s);
+    if (CPU_ISSET(cpu, &mask)) cpus_.push_back(cpu);
+  ticks_per_s_ = static_cast<double>(ticks_per_s);
+  ticks_ = readCpuTicks();
+  own_s_ = ownCpuSeconds();
+}
+
+std::optional<CoreLoad> LoadFollower::measure(std::chrono::milliseconds after) {
+  const auto now = std::chrono::steady_clock::now();
+  if (!ticks_ || now - last_ < after) return std::nullopt;
+  auto ticks = readCpuTicks();
+  const double own_s = ownCpuSeconds();
+  if (!ticks) return std::nullopt;
+  const std::optional<CoreLoad> load =
+      coreLoadBetween(*ticks_, *ticks, cpus_, (own_s - own_s_) * ticks_per_s_);
+  ticks_ = std::move(ticks);
+  own_s_ = own_s;
+  last_ = now;
+  return load;
 }
 
 int threadsForLoad(const CoreLoad& load, int max_threads) {

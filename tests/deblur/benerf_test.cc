@@ -549,7 +549,8 @@ TEST(Benerf, DeterministicForASeedAtAnyThreadCount) {
 }
 
 // threads=auto: beside a process that spins on one core, the run takes one thread fewer than
-// OpenMP's default (never none) and says what it measured; a given count is kept.
+// OpenMP's default (never none), says what it measured and follows the load (`thread_changes`); a
+// given count is kept, with nothing measured.
 TEST(Benerf, WithThreadsAutoARunLeavesABusyCoreAlone) {
   if (!std::ifstream("/proc/stat")) GTEST_SKIP() << "no /proc/stat on this system";
   const Observation& obs = tinyScene();
@@ -566,12 +567,14 @@ TEST(Benerf, WithThreadsAutoARunLeavesABusyCoreAlone) {
   const auto& p = r.parameters;
   ASSERT_TRUE(p.count("busy_cores_elsewhere"));
   EXPECT_GE(p.at("busy_cores_elsewhere"), 0.7);  // other tests beside it only add
+  EXPECT_TRUE(p.count("thread_changes"));        // the count follows the load through the run
   EXPECT_LE(p.at("threads"), std::max(1, omp_get_max_threads() - 1));
   EXPECT_GE(p.at("threads"), 1.0);
   o.threads = 1;
   const DeblurResult given = BenerfDeblurrer(o).run(obs, request);
   EXPECT_EQ(given.parameters.at("threads"), 1.0);
   EXPECT_EQ(given.parameters.count("busy_cores_elsewhere"), 0u);
+  EXPECT_EQ(given.parameters.count("thread_changes"), 0u);
 }
 
 TEST(Benerf, ResumingFromACheckpointContinuesTheSameRun) {

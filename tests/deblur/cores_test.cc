@@ -5,6 +5,7 @@
 #include <chrono>
 #include <fstream>
 #include <optional>
+#include <thread>
 
 #include "test_util.h"
 
@@ -51,19 +52,25 @@ TEST(Cores, ThreadsAreTheIdleCoresRounded) {
   EXPECT_EQ(threadsForLoad({8, 0.0}, 4), 4);  // no more than asked
 }
 
-// A child process that spins on one core is seen as another program's load. Other tests running
-// beside this one can only add to it.
-TEST(Cores, SeesAnotherProcessThatSpins) {
+// The follower measures without waiting: nothing until `after` has passed since its last
+// measurement, then the load since it, where a child process that spins on one core is another
+// program's (other tests running beside this one can only add to it); the next measurement is
+// again of the time since that one.
+TEST(Cores, FollowsTheLoadWithoutWaiting) {
   if (!std::ifstream("/proc/stat")) GTEST_SKIP() << "no /proc/stat on this system";
+  LoadFollower follower;
+  EXPECT_FALSE(follower.measure(std::chrono::seconds(60)));
   std::optional<CoreLoad> load;
   {
     const test::SpinningProcess busy;
     ASSERT_GT(busy.pid(), 0) << "fork failed";
-    load = measureCoreLoad(std::chrono::milliseconds(300));
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+    load = follower.measure(std::chrono::milliseconds(250));
   }
   ASSERT_TRUE(load);
   EXPECT_GE(load->cores, 1);
   EXPECT_GE(load->busy_elsewhere, 0.7) << "on " << load->cores << " cores";
+  EXPECT_FALSE(follower.measure(std::chrono::seconds(60)));
 }
 
 }  // namespace

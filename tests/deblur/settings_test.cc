@@ -117,9 +117,11 @@ TEST(Settings, ChoicesRoundTripThroughTheirNames) {
             std::string::npos);
 }
 
-// threads: a count, or auto (the cores other programs leave idle), shown back as it was given.
+// threads: auto (the cores other programs leave idle; the default) or a count, shown back as it was
+// given.
 TEST(Settings, ThreadsAreACountOrAuto) {
-  EXPECT_EQ(benerfOptions({}).threads, 0);
+  EXPECT_EQ(benerfOptions({}).threads, kThreadsFromLoad);
+  EXPECT_EQ(benerfOptions({{"threads", "0"}}).threads, 0);
   EXPECT_EQ(benerfOptions({{"threads", "3"}}).threads, 3);
   EXPECT_EQ(benerfOptions({{"threads", "auto"}}).threads, kThreadsFromLoad);
   for (const char* bad : {"-1", "1.5", "many"}) {
@@ -129,7 +131,7 @@ TEST(Settings, ThreadsAreACountOrAuto) {
               std::string::npos)
         << bad;
   }
-  EXPECT_NE(deblurrerHelp("benerf").find("threads (N|auto, default 0)"), std::string::npos);
+  EXPECT_NE(deblurrerHelp("benerf").find("threads (N|auto, default auto)"), std::string::npos);
 }
 
 }  // namespace

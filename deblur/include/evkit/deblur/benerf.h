@@ -203,10 +203,11 @@ struct BenerfOptions {
   double budget_seconds = 0;  // > 0: the iteration count is chosen so that the whole run (training
                               // and renders) fits this wall time
   uint64_t seed = 1;
-  // 0: OpenMP's default (every core, or OMP_NUM_THREADS); kThreadsFromLoad: the cores that other
-  // programs leave idle, measured before the run (cores.h). With the pixel grid and the hash field
-  // the figures are the same bit for bit at any thread count (the MLP's at one count).
-  int threads = 0;
+  // kThreadsFromLoad: the cores that other programs leave idle (of OpenMP's, every core or
+  // OMP_NUM_THREADS), measured before the run and followed through it (cores.h); 0: OpenMP's
+  // count; N: N threads. With the pixel grid and the hash field the figures are the same bit for
+  // bit at any thread count; the MLP's only at one count.
+  int threads = kThreadsFromLoad;
   LogMapping log;
   // Checkpoint: written every checkpoint_every iterations and at the end when a path is given;
   // resume continues from one (the same observation and settings).

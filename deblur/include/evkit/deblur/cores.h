@@ -34,10 +34,24 @@ std::optional<CoreLoad> coreLoadBetween(const std::map<int, CpuTicks>& before,
                                         const std::map<int, CpuTicks>& after,
                                         const std::vector<int>& cpus, double own_ticks);
 
-// The load on this process's CPUs over `window`: /proc/stat read at both ends, this process's own
-// CPU time in between (getrusage) taken out. nullopt where /proc/stat or the mask cannot be read
-// (not Linux).
-std::optional<CoreLoad> measureCoreLoad(std::chrono::milliseconds window);
+// The load on this process's CPUs followed through a long run without waiting: each measurement
+// is of the time since the one before (or since the follower was made), /proc/stat's counters at
+// both ends and this process's own CPU time in between (getrusage) taken out.
+class LoadFollower {
+ public:
+  LoadFollower();  // the counters now
+  // The load since the last measurement where at least `after` has passed since it (and the
+  // counters then taken anew); nullopt before that, or where /proc/stat or the mask cannot be read
+  // (not Linux).
+  std::optional<CoreLoad> measure(std::chrono::milliseconds after = {});
+
+ private:
+  std::vector<int> cpus_;  // the affinity mask's
+  double ticks_per_s_ = 0;
+  std::chrono::steady_clock::time_point last_;
+  std::optional<std::map<int, CpuTicks>> ticks_;
+  double own_s_ = 0;
+};
 
 // The threads to run on: the cores that other programs leave idle, rounded to the nearest whole
 // core, at least 1 and at most `max_threads`.
