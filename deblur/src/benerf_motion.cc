@@ -3,8 +3,6 @@
 // time, optionally a translation per time seen through a per-tile inverse depth), and the choice
 // between the two by whether the parallax is observable in the data.
 
-#include <omp.h>
-
 #include <algorithm>
 #include <array>
 #include <cmath>

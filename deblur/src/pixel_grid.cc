@@ -7,8 +7,6 @@
 
 #include "evkit/deblur/pixel_grid.h"
 
-#include <omp.h>
-
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -543,6 +541,15 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
   };
   const double smooth = orderedSum(canvas_h_, [&](std::ptrdiff_t j) {
     double smooth_row = 0;
+    // Row j of each block's gradient that reaches it, in block order.
+    std::array<const double*, kRowBlocks> from_blocks{};
+    int reaching = 0;
+    for (size_t block = 0; block < partial.size(); ++block) {
+      const auto [first, last] = block_rows_[block];
+      if (j >= first && j < last)
+        from_blocks[static_cast<size_t>(reaching++)] =
+            partial[block].data() + static_cast<size_t>(j - first) * row;
+    }
     double d_pair[3], d_right[3] = {0, 0, 0},
                       d_left[3] = {0, 0, 0};  // the pairs with the right and the left neighbour
     for (int i = 0; i < canvas_w_; ++i) {
@@ -573,10 +580,7 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
       if (!gradient) continue;
       for (int c = 0; c < C; ++c) {
         double sum = 0;
-        for (size_t block = 0; block < partial.size(); ++block) {
-          const auto [first, last] = block_rows_[block];
-          if (j >= first && j < last) sum += partial[block][a - first * row + c];
-        }
+        for (int b = 0; b < reaching; ++b) sum += from_blocks[static_cast<size_t>(b)][i * C + c];
         (*gradient)[a + c] = sum * slope[a + c] + d_smooth[c];
       }
     }
