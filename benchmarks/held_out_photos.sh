@@ -1,0 +1,98 @@
+#!/usr/bin/env bash
+# The natural scenes' layouts with photographs that no suite uses, for BENCHMARKS.md "Outside the
+# suites: photographs not in them": eleven observations (shakes, blurs and seeds of no suite, five
+# with the noisy suite's events), EDI and BeNeRF `fast` on each, then a table of PSNR at
+# mid-exposure:
+#   bash benchmarks/held_out_photos.sh EVKIT OUT [--unknown-contrast]
+# The photographs are python3-skimage's other data images, each linked under the file name of the
+# suite photograph it stands in for ($EVKIT_PHOTOS names another skimage data folder). Runs that
+# finished are kept; remove OUT/runs to repeat them.
+set -u
+if [ $# -lt 2 ] || { [ $# -eq 3 ] && [ "$3" != --unknown-contrast ]; } || [ $# -gt 3 ]; then
+  echo "usage: $0 EVKIT OUT [--unknown-contrast]" >&2
+  exit 2
+fi
+evkit=$1 out=$2 unknown=${3:-}
+data=${EVKIT_PHOTOS:-/usr/lib/python3/dist-packages/skimage/data}
+mkdir -p "$out/photos" "$out/obs" "$out/runs" || exit 1
+# suite file name -> the photograph that stands in for it
+while read -r suite other; do
+  [ -f "$data/$other" ] || { echo "$0: $data/$other: no such photograph" >&2; exit 1; }
+  ln -sfn "$data/$other" "$out/photos/$suite"
+done <<'EOF'
+astronaut.png motorcycle_right.png
+hubble_deep_field.jpg motorcycle_right.png
+coffee.png ihc.png
+brick.png moon.png
+coins.png moon.png
+chelsea.png retina.jpg
+grass.png microaneurysms.png
+camera.png phantom.png
+gravel.png cell.png
+rocket.jpg page.png
+text.png page.png
+EOF
+noise=(--sigma 0.03 --shot-noise-hz 1 --leak-hz 0.1)
+status=0
+# scene, blur (px), seed, share of the image motion from rotation, noise (n) or not (-)
+while read -r scene blur seed share noisy; do
+  name=${scene}_blur${blur}
+  extra=()
+  if [ "$noisy" = n ]; then name=${name}_noisy extra=("${noise[@]}"); fi
+  obs=$out/obs/$name
+  if [ ! -d "$obs" ]; then
+    "$evkit" synth --preset "$scene" --blur-px "$blur" --seed "$seed" --rotation-share "$share" \
+      --share-of-image-motion --preroll-us 30000 "${extra[@]}" --photos "$out/photos" \
+      --out "$obs" > /dev/null || { status=1; continue; }
+  fi
+  input=$obs tag=given
+  if [ -n "$unknown" ]; then  # the same folder without contrast.txt
+    input=$out/obs-unknown/$name tag=unknown
+    mkdir -p "$input"
+    for f in "$obs"/*; do [ "${f##*/}" = contrast.txt ] || ln -sfn "$(realpath "$f")" "$input/"; done
+  fi
+  for method in edi benerf; do
+    run=$out/runs/$name/${method}_$tag
+    [ -f "$run/summary.json" ] && continue
+    opts=()
+    [ "$method" = benerf ] && opts=(--set budget=fast)
+    "$evkit" deblur "$input" --method "$method" "${opts[@]}" --out "$run" > /dev/null || status=1
+  done
+done <<'EOF'
+coffee_astronaut 35 601 0.5 n
+cat_bricks 48 602 0.6 -
+cameraman_grass 22 603 0.7 n
+rocket_layers 35 604 0.4 -
+four_layers 48 605 0.5 n
+slanted_bricks 22 606 0.6 -
+gravel_ground 35 607 0.7 n
+coffee_plane 48 608 0.4 -
+astronaut_plane 22 609 0.5 n
+hubble_rocket 35 610 0.6 -
+text_coins 48 611 0.7 n
+EOF
+python3 - "$out/runs" "${unknown:+unknown}" <<'EOF' || status=1
+import json, os, sys
+runs, tag = sys.argv[1], sys.argv[2] or "given"
+print("| observation | EDI | BeNeRF `fast` | BeNeRF - EDI | wall (s) | representation |")
+print("|---|---:|---:|---:|---:|---|")
+edi_sum = benerf_sum = count = 0
+for name in sorted(os.listdir(runs)):
+    try:
+        edi = json.load(open(f"{runs}/{name}/edi_{tag}/summary.json"))
+        ben = json.load(open(f"{runs}/{name}/benerf_{tag}/summary.json"))
+    except OSError:
+        continue
+    e, b, p = edi["metrics"]["psnr_mid"], ben["metrics"]["psnr_mid"], ben["parameters"]
+    if p.get("representation_pixels"):
+        rep = "grid, " + ("pixel depth" if p.get("representation_pixel_depth")
+                          else "tiles" if p.get("representation_depth") else "plane")
+    else:
+        rep = "hash field"
+    print(f"| {name} | {e:.2f} | {b:.2f} | {b - e:+.2f} | {ben['wall_time_s']:.1f} | {rep} |")
+    edi_sum, benerf_sum, count = edi_sum + e, benerf_sum + b, count + 1
+if count:
+    print(f"| mean of {count} | {edi_sum / count:.2f} | {benerf_sum / count:.2f} | "
+          f"{(benerf_sum - edi_sum) / count:+.2f} | | |")
+EOF
+exit $status
