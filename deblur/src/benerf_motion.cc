@@ -592,6 +592,27 @@ cv::Mat checkedFlow(const cv::Mat& forward, const cv::Mat& backward) {
   return checked;
 }
 
+// The events per pixel over the exposure that a point's neighbourhood (5 x 5 px) must have fired
+// to be tracked. EDI's latent frames move only where events fired: elsewhere they are the blurry
+// frame, scaled, and their texture stays put while the camera moves, so the flows there fall short
+// of the motion and pull the rigid camera's fit. On a smooth retina before the moon at 48 px of
+// blur (BENCHMARKS.md, "Only where events fired") the flows were off the truth by a median of 5.9
+// px where under 0.84 events per pixel had fired and 1.1 px where over 3.4 had.
+constexpr double kLeastEventsPerPixel = 1;
+
+// The events of the exposure per pixel, averaged over each pixel's 5 x 5 neighbourhood (CV_32F).
+cv::Mat eventsPerPixel(const Observation& obs, int W, int H) {
+  cv::Mat count(H, W, CV_32F, cv::Scalar(0));
+  const EventSpan events =
+      obs.events.view().sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us);
+  for (size_t i = 0; i < events.size(); ++i) {
+    const int x = events.x[i], y = events.y[i];
+    if (x < W && y < H) count.at<float>(y, x) += 1;
+  }
+  cv::blur(count, count, cv::Size(5, 5));
+  return count;
+}
+
 // The points tracked from mid-exposure into EDI's latent frames: pixels only, so that any camera
 // can explain them.
 struct TrackedPoints {
@@ -601,6 +622,7 @@ struct TrackedPoints {
   // failed; empty at mid-exposure.
   std::vector<cv::Mat> flows;
   int tiles_x = 1, tiles_y = 1;
+  int without_events = 0;  // textured points left out: too few events around them
 };
 
 TrackedPoints trackLatentFrames(const Observation& obs, const std::optional<Contrast>& contrast,
@@ -627,16 +649,29 @@ TrackedPoints trackLatentFrames(const Observation& obs, const std::optional<Cont
   std::nth_element(tex.begin(), tex.begin() + tex.size() * 9 / 10, tex.end());
   const float min_texture = 0.05f * tex[tex.size() * 9 / 10];
 
-  // Tracks on a 4 px grid wherever the mid frame has texture.
+  // Tracks on a 4 px grid wherever the mid frame has texture and events fired.
   const int W = mid8.cols, H = mid8.rows, step = 4, margin = 4;
+  const cv::Mat fired = eventsPerPixel(obs, W, H);
   // Tiles of about 24 px: a few dozen tracks each.
   const int kTilesX = std::max(1, (W + 12) / 24), kTilesY = std::max(1, (H + 12) / 24);
   out.tiles_x = kTilesX;
   out.tiles_y = kTilesY;
   std::vector<Track>& tracks = out.tracks;
+  // Where too few points fired events for a fit (an exposure without events), every textured
+  // point, whose flows then say how little the frames move.
+  int with_events = 0, textured = 0;
   for (int y = margin; y < H - margin; y += step) {
     for (int x = margin; x < W - margin; x += step) {
       if (texture.at<float>(y, x) < min_texture) continue;
+      ++textured;
+      with_events += fired.at<float>(y, x) >= kLeastEventsPerPixel;
+    }
+  }
+  const double least_events = with_events >= kMinTracks ? kLeastEventsPerPixel : 0;
+  out.without_events = with_events >= kMinTracks ? textured - with_events : 0;
+  for (int y = margin; y < H - margin; y += step) {
+    for (int x = margin; x < W - margin; x += step) {
+      if (texture.at<float>(y, x) < min_texture || fired.at<float>(y, x) < least_events) continue;
       Track tr;
       tr.pixel = {x, y};
       tr.tile = tileOf(x, y, W, H, kTilesX, kTilesY);
@@ -679,6 +714,7 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
   const int kTilesX = points.tiles_x, kTilesY = points.tiles_y;
   for (Track& tr : tracks) tr.bearing = nerf::pixelDirection(camera, tr.pixel.x(), tr.pixel.y());
   m.tracks = static_cast<int>(tracks.size());
+  m.tracks_without_events = points.without_events;
   if (m.tracks < kMinTracks) return m;
 
   // Three models of rising richness: a rotation alone; a rotation and a translation seen through

@@ -134,6 +134,7 @@ void reportMotion(const ExposureMotion& motion, DeblurResult& result) {
   result.parameters["motion_residual_pixels_px"] = motion.residual_pixels_px;
   result.parameters["representation_pixel_depth"] = motion.pixel_depth ? 1 : 0;
   result.parameters["motion_tracks"] = motion.tracks;
+  result.parameters["motion_tracks_without_events"] = motion.tracks_without_events;
 }
 
 Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& result) {

@@ -204,8 +204,12 @@ SolvedContrast contrastFromSolves(
     }
   }
   SolvedContrast out;
-  out.at_end = l < lo + 1e-9 || l > hi - 1e-9;
   l += vertexShift(f[0], f[1], f[2], h);
+  // At an end within half a step of it: the walk's points are c0's steps of 2^(1/6), not the
+  // range's, and can stop a hair inside an end (the noisy ground_blur15 without thresholds: at
+  // 0.05002, where the motion had collapsed with c; the grid then 6.5 dB below the frame of the
+  // hash field with normalised events, which the end hands it to).
+  out.at_end = l < lo + h / 2 || l > hi - h / 2;
   result.parameters["contrast_solves"] = solves;
   out.contrast = {std::exp(l), std::exp(l) * ratio};
   return out;

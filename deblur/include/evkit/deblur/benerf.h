@@ -299,6 +299,9 @@ struct ExposureMotion {
   bool pixel_depth = false;       // the depth model refined to each pixel's own depth
   double residual_pixels_px = 0;  // its RMS residual
   int tracks = 0;                 // textured points tracked
+  // Textured points not tracked: their neighbourhood fired under one event per pixel over the
+  // exposure, and EDI's latent frames do not move there.
+  int tracks_without_events = 0;
   // The chosen model's inverse depth (1 / z in the poses' units) at every pixel of the mid-exposure
   // frame (float32); empty without poses.
   cv::Mat inverse_depth;
