@@ -8,7 +8,15 @@
 #include "evkit/deblur/metrics.h"
 #include "evkit/events/log_intensity.h"
 
+namespace evkit {
+struct Observation;
+}
+
 namespace evkit::benerf_detail {
+
+// How many events each pixel saw over the exposure (float64, the frame's size; events outside it
+// are not counted). In pixel_grid_start.cc.
+cv::Mat exposureEventCounts(const Observation& obs);
 
 inline double secondsSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

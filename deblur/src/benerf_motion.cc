@@ -601,14 +601,9 @@ cv::Mat checkedFlow(const cv::Mat& forward, const cv::Mat& backward) {
 constexpr double kLeastEventsPerPixel = 1;
 
 // The events of the exposure per pixel, averaged over each pixel's 5 x 5 neighbourhood (CV_32F).
-cv::Mat eventsPerPixel(const Observation& obs, int W, int H) {
-  cv::Mat count(H, W, CV_32F, cv::Scalar(0));
-  const EventSpan events =
-      obs.events.view().sliceTime(obs.blurry.exposure_start_us, obs.blurry.exposure_end_us);
-  for (size_t i = 0; i < events.size(); ++i) {
-    const int x = events.x[i], y = events.y[i];
-    if (x < W && y < H) count.at<float>(y, x) += 1;
-  }
+cv::Mat eventsPerPixel(const Observation& obs) {
+  cv::Mat count;
+  benerf_detail::exposureEventCounts(obs).convertTo(count, CV_32F);
   cv::blur(count, count, cv::Size(5, 5));
   return count;
 }
@@ -651,7 +646,7 @@ TrackedPoints trackLatentFrames(const Observation& obs, const std::optional<Cont
 
   // Tracks on a 4 px grid wherever the mid frame has texture and events fired.
   const int W = mid8.cols, H = mid8.rows, step = 4, margin = 4;
-  const cv::Mat fired = eventsPerPixel(obs, W, H);
+  const cv::Mat fired = eventsPerPixel(obs);
   // Tiles of about 24 px: a few dozen tracks each.
   const int kTilesX = std::max(1, (W + 12) / 24), kTilesY = std::max(1, (H + 12) / 24);
   out.tiles_x = kTilesX;

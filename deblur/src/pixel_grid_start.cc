@@ -26,8 +26,12 @@ double vertexShift(double a, double b, double c, double h) {
   return std::isfinite(curvature) && curvature > 0 ? 0.5 * h * (a - c) / curvature : 0.0;
 }
 
-// How many events each pixel saw over the exposure (float64, the frame's size; events outside it
-// are not counted).
+// The views of the search for c's grids (contrastFromMotion, contrastFromSolves): the blur
+// integral coarser than the run's, alike for every c.
+constexpr int kSearchViews = 20;
+
+}  // namespace
+
 cv::Mat exposureEventCounts(const Observation& obs) {
   const Frame& blurry = obs.blurry;
   EventSpan span = obs.events.sliceTime(blurry.exposure_start_us, blurry.exposure_end_us);
@@ -37,12 +41,6 @@ cv::Mat exposureEventCounts(const Observation& obs) {
   cv::add(counts.on, counts.off, both, cv::noArray(), CV_64F);
   return both;
 }
-
-// The views of the search for c's grids (contrastFromMotion, contrastFromSolves): the blur
-// integral coarser than the run's, alike for every c.
-constexpr int kSearchViews = 20;
-
-}  // namespace
 
 // The observation with only the events that a neighbouring pixel supports within the time the
 // image takes to move `support_px` pixels (by the motion), and the share dropped.
