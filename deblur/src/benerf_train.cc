@@ -751,6 +751,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   result.parameters["virtual_views"] = problem.views();
   result.parameters["field_parameters"] = problem.size();
   result.parameters["blur_px_motion"] = problem.blurLength();
+  result.parameters["views_across_depth_edges"] = problem.acrossShare();
   result.parameters["beta"] = po.beta;
   result.parameters["final_blur_term"] = terms.blur;
   result.parameters["final_event_term"] = terms.event;

@@ -10,6 +10,7 @@
 #include <opencv2/imgproc.hpp>
 #include <random>
 #include <stdexcept>
+#include <tuple>
 
 #include "evkit/base/error.h"
 #include "evkit/deblur/edi.h"
@@ -860,6 +861,92 @@ TEST(PixelGrid, SameImageAtEveryThreadCount) {
   EXPECT_GT(motion_gradients[0].norm(), 0.0);
   EXPECT_TRUE(motion_gradients[0] == motion_gradients[1]);
   EXPECT_TRUE(motion_gradients[0] == motion_gradients[2]);
+}
+
+// A view's sample is seen across a depth edge where the inverse depth at the cell it lands on would
+// move it more than half a pixel: it looks past an occluding edge at what the mid-exposure image
+// does not hold, and its comparisons with the events leave the event term. A camera sliding along
+// x over a near half (inverse depth 1) beside a far one (0.1): no sample is flagged over one depth
+// or a smooth slant, and over the step only samples within the layers' parallax of the edge are,
+// the near layer's pixels that the slide carries across it.
+TEST(PixelGrid, ViewsSeenAcrossADepthEdgeLeaveTheEventTerm) {
+  GridScene scene = gridScene(false);
+  const int64_t t0 = scene.obs.blurry.exposure_start_us, t1 = scene.obs.blurry.exposure_end_us;
+  constexpr double kSlide = 0.5;
+  std::vector<StampedPose> poses;
+  for (int k = 0; k <= 8; ++k)
+    poses.push_back({t0 + (t1 - t0) * k / 8,
+                     SE3(Matrix3::Identity(), Vector3(kSlide * (k / 8.0 - 0.5), 0, 0))});
+  const Trajectory slide = fitTrajectory(TrajectoryKind::kCubicSE3, 4, t0, t1, poses);
+  PixelGridOptions o;
+  o.smoothness = 0;
+  const auto problemOver = [&](const cv::Mat& inverse_depth) {
+    return PixelGridProblem(scene.obs, scene.camera, slide, inverse_depth, Contrast{0.2, 0.2}, o);
+  };
+  cv::Mat slant(18, 24, CV_32F), step(18, 24, CV_32F, cv::Scalar(0.1f));
+  for (int y = 0; y < 18; ++y) {
+    for (int x = 0; x < 24; ++x) slant.at<float>(y, x) = 0.1f + 0.02f * x;
+  }
+  step(cv::Rect(12, 0, 12, 18)).setTo(1.0f);
+  EXPECT_EQ(problemOver(cv::Mat(18, 24, CV_32F, cv::Scalar(0.6f))).acrossShare(), 0.0);
+  EXPECT_EQ(problemOver(slant).acrossShare(), 0.0);
+  const PixelGridProblem over_step = problemOver(step);
+  ASSERT_GT(over_step.acrossShare(), 0.0);
+  // The most the near layer moves off the far one from mid-exposure, and one pixel of rounding.
+  const double parallax = scene.camera.fx * 0.5 * kSlide * (1.0 - 0.1) + 1;
+  int flagged = 0;
+  for (int k = 0; k < over_step.views(); ++k) {
+    for (int y = 0; y < 18; ++y) {
+      for (int x = 0; x < 24; ++x) {
+        if (!over_step.seenAcrossDepthEdge(k, x, y)) continue;
+        ++flagged;
+        EXPECT_GE(x, 12) << "view " << k << " pixel " << x << ", " << y;
+        EXPECT_LT(x - 12, parallax) << "view " << k << " pixel " << x << ", " << y;
+      }
+    }
+  }
+  EXPECT_NEAR(over_step.acrossShare(), flagged / (18.0 * 24 * over_step.views()), 1e-12);
+  // The first view (the camera furthest to the left) takes the near layer's pixels next to the
+  // edge from the mid frame's far layer, whose depth would move them back onto the near one: every
+  // row's two nearest are flagged. The last view takes them from further into the near layer:
+  // none.
+  const int last = over_step.views() - 1;
+  for (int y = 0; y < 18; ++y) {
+    for (const int x : {12, 13}) {
+      EXPECT_TRUE(over_step.seenAcrossDepthEdge(0, x, y)) << "pixel " << x << ", " << y;
+      EXPECT_FALSE(over_step.seenAcrossDepthEdge(last, x, y)) << "pixel " << x << ", " << y;
+    }
+  }
+  // Events at those pixels that only the first view's comparisons read (between its time and the
+  // second's) leave the event term as it was; the same events read by the last view's alone
+  // (between the last two views' times) change it.
+  const std::vector<double> image = over_step.start(scene.obs.blurry.image);
+  const auto eventTermWith = [&](int64_t t_event) {
+    Observation more = scene.obs;
+    const EventSpan old = scene.obs.events.view();
+    std::vector<std::tuple<int64_t, uint16_t, uint16_t, int8_t>> all;
+    for (size_t i = 0; i < old.size(); ++i)
+      all.emplace_back(old.t[i], old.x[i], old.y[i], old.p[i]);
+    for (uint16_t y = 0; y < 18; ++y) {
+      for (const uint16_t x : {12, 13}) all.emplace_back(t_event, x, y, int8_t{1});
+    }
+    std::stable_sort(all.begin(), all.end(),
+                     [](const auto& a, const auto& b) { return std::get<0>(a) < std::get<0>(b); });
+    more.events.clear();
+    for (const auto& [t, x, y, p] : all) more.events.push_back(t, x, y, p);
+    const PixelGridProblem problem(more, scene.camera, slide, step, Contrast{0.2, 0.2}, o);
+    PixelGridProblem::Terms terms;
+    problem.evaluate(image, nullptr, &terms);
+    return terms.event;
+  };
+  PixelGridProblem::Terms before;
+  over_step.evaluate(image, nullptr, &before);
+  const int views = over_step.views();
+  const auto viewTime = [&](double k) {
+    return t0 + std::llround((k + 0.5) / views * static_cast<double>(t1 - t0));
+  };
+  EXPECT_EQ(eventTermWith(viewTime(0.5)), before.event);
+  EXPECT_GT(eventTermWith(viewTime(views - 1.5)), before.event * (1 + 1e-6));
 }
 
 // With `converged`, the solve stops at the first step where the loss fell by less than that

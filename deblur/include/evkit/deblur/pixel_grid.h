@@ -124,6 +124,13 @@ class PixelGridProblem {
   // The mean penalty of the held-out pixels' comparisons with mid-exposure (the event term's
   // first part, unweighted); 0 when none are held out.
   double heldOutEventTerm(const std::vector<double>& u) const;
+  // The share of the views' samples seen across a depth edge, whose comparisons with the events
+  // are left out (across_): 0 on a plane.
+  double acrossShare() const;
+  // Whether view `view`'s sample of pixel (x, y) is one of them.
+  bool seenAcrossDepthEdge(int view, int x, int y) const {
+    return across_[viewSlot(view, static_cast<size_t>(y) * camera_.width + x)] != 0;
+  }
   // Each pixel's share of the blur term, unweighted: the squared residuals of its channels, summed
   // (float64, the frame's size).
   cv::Mat blurResiduals(const std::vector<double>& u) const;
@@ -197,6 +204,14 @@ class PixelGridProblem {
   // Per pixel and view, a pixel's views side by side (viewSlot): the loss reads them pixel by
   // pixel.
   std::vector<CanvasTaps> taps_;
+  // Per view slot, 1 where the view's sample is seen across a depth edge (acrossDepthEdge in
+  // pixel_grid.cc): it looks past an occluding edge at what the mid-exposure image does not hold,
+  // and the events there record that (a background coming into view), which no cell can render.
+  // Such a sample stays in the blur term (the blurry frame averages whatever the pixel saw) but
+  // its comparisons with the events are left out of the event term, the motion's normal equations
+  // and the held-out score: fitted, they pull the near surface's cells towards the background's
+  // changes (BENCHMARKS.md, "Views across a depth edge").
+  std::vector<uint8_t> across_;
   std::vector<std::array<int, 2>> block_rows_;  // per row block, the canvas rows [first, last)
   std::vector<float> change_;                   // the events' log change since mid-exposure
   std::vector<uint8_t> held_out_;               // per pixel, when some are held out (holdOutEvents)
