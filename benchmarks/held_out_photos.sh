@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The natural scenes' layouts with photographs that no suite uses, for BENCHMARKS.md "Outside the
-# suites: photographs not in them": eleven observations (shakes, blurs and seeds of no suite, five
-# with the noisy suite's events), EDI and BeNeRF `fast` on each, then a table of PSNR at
-# mid-exposure:
+# suites: photographs not in them": 24 observations (shakes, blurs and seeds of no suite; the first
+# eleven at 22, 35 and 48 px of blur, the other thirteen at 25 and 40 px; 11 with the noisy
+# suite's events), EDI and BeNeRF `fast` on each, then a table of PSNR at mid-exposure:
 #   bash benchmarks/held_out_photos.sh EVKIT OUT [--unknown-contrast]
 # The photographs are python3-skimage's other data images, each linked under the file name of the
 # suite photograph it stands in for ($EVKIT_PHOTOS names another skimage data folder). Runs that
@@ -70,6 +70,19 @@ coffee_plane 48 608 0.4 -
 astronaut_plane 22 609 0.5 n
 hubble_rocket 35 610 0.6 -
 text_coins 48 611 0.7 n
+coffee_astronaut 25 701 0.3 -
+cat_bricks 40 702 0.5 n
+cameraman_grass 40 703 0.4 -
+rocket_layers 25 704 0.6 n
+four_layers 25 705 0.7 -
+slanted_bricks 40 706 0.3 n
+gravel_ground 25 707 0.5 -
+coffee_plane 40 708 0.6 n
+astronaut_plane 40 709 0.7 -
+hubble_rocket 25 710 0.4 n
+text_coins 25 711 0.5 -
+cat_bricks 25 713 0.6 -
+four_layers 40 714 0.4 n
 EOF
 python3 - "$out/runs" "${unknown:+unknown}" <<'EOF' || status=1
 import json, os, sys
