@@ -71,12 +71,17 @@ void sampleBackward(double* g, int width, int C, const Taps& t, const double* d)
   }
 }
 
+// The nearest of 0..size-1 to a coordinate (0 for NaN): std::lround's pixel, without its call.
+inline int nearestIndex(double u, int size) {
+  if (!(u > 0)) return 0;
+  return u >= size - 1 ? size - 1 : static_cast<int>(u + 0.5);
+}
+
 // The inverse depth of the mid frame's pixel nearest (u, v) (0 without a map).
-double inverseDepthAt(const PinholeCamera& camera, const cv::Mat& inverse_depth, double u,
-                      double v) {
-  const int col = std::clamp(static_cast<int>(std::lround(u)), 0, camera.width - 1),
-            row = std::clamp(static_cast<int>(std::lround(v)), 0, camera.height - 1);
-  return inverse_depth.empty() ? 0.0 : static_cast<double>(inverse_depth.at<float>(row, col));
+inline double inverseDepthAt(const PinholeCamera& camera, const cv::Mat& inverse_depth, double u,
+                             double v) {
+  if (inverse_depth.empty()) return 0.0;
+  return inverse_depth.at<float>(nearestIndex(v, camera.height), nearestIndex(u, camera.width));
 }
 
 // Where pixel (x, y), ray direction d in the mid-exposure camera, is seen by the camera at the pose
@@ -327,6 +332,7 @@ void PixelGridProblem::buildTaps() {
   const size_t N = directions_.size();
   taps_.resize(static_cast<size_t>(views_) * N);
   across_.assign(taps_.size(), 0);
+  across_pixels_.assign(N, 0);
   for (int k = 0; k < views_; ++k) {
     const SE3 pose = motion_.poseAt(times_us_[static_cast<size_t>(k)]);
     const Matrix3 R = pose.rotationMatrix();
@@ -342,6 +348,10 @@ void PixelGridProblem::buildTaps() {
             camera_, inverse_depth_, R * directions_[pixel], pose.translation(), q, rho_used);
       }
     }
+  }
+#pragma omp parallel for schedule(static)
+  for (size_t pixel = 0; pixel < N; ++pixel) {
+    for (int k = 0; k < views_; ++k) across_pixels_[pixel] |= across_[viewSlot(k, pixel)];
   }
   // The canvas rows each block of the frame's rows reaches: its views' stencils (two rows each)
   // and its pixels' own cells at mid-exposure.
@@ -499,9 +509,10 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
           const bool held = !held_out_.empty() && held_out_[pixel];
           referenceLevels(logs.data(), mid_log, reference.data(), source.data());
           std::fill(d_reference.begin(), d_reference.end(), 0.0);
+          const bool across = across_pixels_[pixel] != 0;
           for (int k = 0; k < V && !held; ++k) {
             const auto a = static_cast<size_t>(k);
-            if (across_[viewSlot(k, pixel)]) continue;
+            if (across && across_[viewSlot(k, pixel)]) continue;
             const double r =
                 reference[a] - reference[static_cast<size_t>(V)] - change_[viewSlot(k, pixel)];
             double weight;
@@ -511,7 +522,7 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
             d_reference[static_cast<size_t>(V)] -= d;
             if (lag == 0 || k + lag >= V) continue;
             const auto b = static_cast<size_t>(k + lag);
-            if (across_[viewSlot(k + lag, pixel)]) continue;
+            if (across && across_[viewSlot(k + lag, pixel)]) continue;
             const double rw = reference[b] - change_[viewSlot(k + lag, pixel)] -
                               (reference[a] - change_[viewSlot(k, pixel)]);
             event_sum += window_scale * rw * rw;
@@ -881,7 +892,7 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
           referenceLevels(logs.data(), mid_log, reference.data(), source.data());
           for (int k = 0; k < V; ++k) {
             const auto ki = static_cast<size_t>(k);
-            if (!lit[ki] || across_[viewSlot(k, pixel)]) continue;
+            if (!lit[ki] || (across_pixels_[pixel] && across_[viewSlot(k, pixel)])) continue;
             terms.clear();
             addSources(k, 1.0);
             addSources(V, -1.0);
@@ -996,7 +1007,7 @@ double PixelGridProblem::heldOutEventTerm(const std::vector<double>& u) const {
       }
       referenceLevels(logs.data(), mid_log, reference.data(), source.data());
       for (int k = 0; k < V; ++k) {
-        if (across_[viewSlot(k, pixel)]) continue;
+        if (across_pixels_[pixel] && across_[viewSlot(k, pixel)]) continue;
         const double r = reference[static_cast<size_t>(k)] - reference[static_cast<size_t>(V)] -
                          change_[viewSlot(k, pixel)];
         double weight;

@@ -212,6 +212,7 @@ class PixelGridProblem {
   // and the held-out score: fitted, they pull the near surface's cells towards the background's
   // changes (BENCHMARKS.md, "Views across a depth edge").
   std::vector<uint8_t> across_;
+  std::vector<uint8_t> across_pixels_;          // per pixel, 1 where any of its views' samples is
   std::vector<std::array<int, 2>> block_rows_;  // per row block, the canvas rows [first, last)
   std::vector<float> change_;                   // the events' log change since mid-exposure
   std::vector<uint8_t> held_out_;               // per pixel, when some are held out (holdOutEvents)
