@@ -3,17 +3,26 @@
 # suites: photographs not in them": 24 observations (shakes, blurs and seeds of no suite; the first
 # eleven at 22, 35 and 48 px of blur, the other thirteen at 25 and 40 px; 11 with the noisy
 # suite's events), EDI and BeNeRF `fast` on each, then a table of PSNR at mid-exposure:
-#   bash benchmarks/held_out_photos.sh EVKIT OUT [--unknown-contrast]
+#   bash benchmarks/held_out_photos.sh EVKIT OUT [--unknown-contrast] [--suite-photos]
 # The photographs are python3-skimage's other data images, each linked under the file name of the
-# suite photograph it stands in for ($EVKIT_PHOTOS names another skimage data folder). Runs that
-# finished are kept; remove OUT/runs to repeat them.
+# suite photograph it stands in for ($EVKIT_PHOTOS names another skimage data folder). With
+# --suite-photos, twelve other shakes (seeds 801-812, 25 and 40 px, four in colour) on the suite's
+# own photographs instead, into OUT/suite-photos. Runs that finished are kept; remove OUT/runs to
+# repeat them.
 set -u
-if [ $# -lt 2 ] || { [ $# -eq 3 ] && [ "$3" != --unknown-contrast ]; } || [ $# -gt 3 ]; then
-  echo "usage: $0 EVKIT OUT [--unknown-contrast]" >&2
-  exit 2
-fi
-evkit=$1 out=$2 unknown=${3:-}
+usage() { echo "usage: $0 EVKIT OUT [--unknown-contrast] [--suite-photos]" >&2; exit 2; }
+[ $# -ge 2 ] || usage
+evkit=$1 out=$2 unknown='' suite_photos=''
+shift 2
+for option in "$@"; do
+  case $option in
+    --unknown-contrast) unknown=1 ;;
+    --suite-photos) suite_photos=1 ;;
+    *) usage ;;
+  esac
+done
 data=${EVKIT_PHOTOS:-/usr/lib/python3/dist-packages/skimage/data}
+[ -n "$suite_photos" ] && out=$out/suite-photos
 mkdir -p "$out/photos" "$out/obs" "$out/runs" || exit 1
 # suite file name -> the photograph that stands in for it
 while read -r suite other; do
@@ -34,15 +43,58 @@ text.png page.png
 EOF
 noise=(--sigma 0.03 --shot-noise-hz 1 --leak-hz 0.1)
 status=0
-# scene, blur (px), seed, share of the image motion from rotation, noise (n) or not (-)
-while read -r scene blur seed share noisy; do
+# The photographs' folder (none: the suite's own), and the observations: scene, blur (px), seed,
+# share of the image motion from rotation, noise (n) or not (-), colour (c) or grey (-).
+photos=(--photos "$out/photos")
+if [ -n "$suite_photos" ]; then
+  photos=()
+  frames="coffee_astronaut 40 801 0.6 - c
+cat_bricks 25 802 0.3 - -
+cameraman_grass 25 803 0.6 n -
+rocket_layers 40 804 0.5 - -
+four_layers 40 805 0.3 n -
+slanted_bricks 25 806 0.7 - -
+gravel_ground 40 807 0.4 n -
+coffee_plane 25 808 0.5 - c
+astronaut_plane 25 809 0.4 n c
+hubble_rocket 40 810 0.7 - -
+text_coins 40 811 0.6 n -
+motorcycle 25 812 0.4 - c"
+else
+  frames="coffee_astronaut 35 601 0.5 n -
+cat_bricks 48 602 0.6 - -
+cameraman_grass 22 603 0.7 n -
+rocket_layers 35 604 0.4 - -
+four_layers 48 605 0.5 n -
+slanted_bricks 22 606 0.6 - -
+gravel_ground 35 607 0.7 n -
+coffee_plane 48 608 0.4 - -
+astronaut_plane 22 609 0.5 n -
+hubble_rocket 35 610 0.6 - -
+text_coins 48 611 0.7 n -
+coffee_astronaut 25 701 0.3 - -
+cat_bricks 40 702 0.5 n -
+cameraman_grass 40 703 0.4 - -
+rocket_layers 25 704 0.6 n -
+four_layers 25 705 0.7 - -
+slanted_bricks 40 706 0.3 n -
+gravel_ground 25 707 0.5 - -
+coffee_plane 40 708 0.6 n -
+astronaut_plane 40 709 0.7 - -
+hubble_rocket 25 710 0.4 n -
+text_coins 25 711 0.5 - -
+cat_bricks 25 713 0.6 - -
+four_layers 40 714 0.4 n -"
+fi
+while read -r scene blur seed share noisy colour; do
   name=${scene}_blur${blur}
   extra=()
   if [ "$noisy" = n ]; then name=${name}_noisy extra=("${noise[@]}"); fi
+  if [ "$colour" = c ]; then name=${name}_colour extra+=(--colour); fi
   obs=$out/obs/$name
   if [ ! -d "$obs" ]; then
     "$evkit" synth --preset "$scene" --blur-px "$blur" --seed "$seed" --rotation-share "$share" \
-      --share-of-image-motion --preroll-us 30000 "${extra[@]}" --photos "$out/photos" \
+      --share-of-image-motion --preroll-us 30000 "${extra[@]}" "${photos[@]}" \
       --out "$obs" > /dev/null || { status=1; continue; }
   fi
   input=$obs tag=given
@@ -58,32 +110,7 @@ while read -r scene blur seed share noisy; do
     [ "$method" = benerf ] && opts=(--set budget=fast)
     "$evkit" deblur "$input" --method "$method" "${opts[@]}" --out "$run" > /dev/null || status=1
   done
-done <<'EOF'
-coffee_astronaut 35 601 0.5 n
-cat_bricks 48 602 0.6 -
-cameraman_grass 22 603 0.7 n
-rocket_layers 35 604 0.4 -
-four_layers 48 605 0.5 n
-slanted_bricks 22 606 0.6 -
-gravel_ground 35 607 0.7 n
-coffee_plane 48 608 0.4 -
-astronaut_plane 22 609 0.5 n
-hubble_rocket 35 610 0.6 -
-text_coins 48 611 0.7 n
-coffee_astronaut 25 701 0.3 -
-cat_bricks 40 702 0.5 n
-cameraman_grass 40 703 0.4 -
-rocket_layers 25 704 0.6 n
-four_layers 25 705 0.7 -
-slanted_bricks 40 706 0.3 n
-gravel_ground 25 707 0.5 -
-coffee_plane 40 708 0.6 n
-astronaut_plane 40 709 0.7 -
-hubble_rocket 25 710 0.4 n
-text_coins 25 711 0.5 -
-cat_bricks 25 713 0.6 -
-four_layers 40 714 0.4 n
-EOF
+done <<< "$frames"
 python3 - "$out/runs" "${unknown:+unknown}" <<'EOF' || status=1
 import json, os, sys
 runs, tag = sys.argv[1], sys.argv[2] or "given"
