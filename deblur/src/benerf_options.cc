@@ -192,6 +192,9 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
         .number("hysteresis", &O::hysteresis, {0, 1},
                 "the pixel grid's events against the sensor's reference level, which trails the "
                 "log level by this many thresholds (0: the level itself)")
+        .flag("occlusion", &O::occlusion,
+              "the pixel grid's views see the nearest surface along their rays, and what a near "
+              "surface hides at mid-exposure from a second layer of cells behind it")
         .flag("calibrate", &O::calibrate,
               "without a calibration (no calib.txt), estimate the lens's radial distortion k1 "
               "from the registered motion")

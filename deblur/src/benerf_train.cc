@@ -606,6 +606,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   po.event_window = o.alpha;
   po.chroma_smoothness = o.chroma_smooth;
   po.hysteresis = o.hysteresis;
+  po.occlusion = o.occlusion;
   if (o.smooth > 0) po.smoothness = o.smooth;
   po.max_views = std::max(po.min_views, o.max_views);
   if (o.virtual_views > 0) po.min_views = po.max_views = o.virtual_views;
@@ -752,6 +753,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   result.parameters["field_parameters"] = problem.size();
   result.parameters["blur_px_motion"] = problem.blurLength();
   result.parameters["views_across_depth_edges"] = problem.acrossShare();
+  result.parameters["views_behind"] = problem.behindShare();
   result.parameters["beta"] = po.beta;
   result.parameters["final_blur_term"] = terms.blur;
   result.parameters["final_event_term"] = terms.event;

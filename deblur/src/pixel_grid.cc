@@ -84,12 +84,12 @@ inline double inverseDepthAt(const PinholeCamera& camera, const cv::Mat& inverse
   return inverse_depth.at<float>(nearestIndex(v, camera.height), nearestIndex(u, camera.width));
 }
 
-// Where pixel (x, y), ray direction d in the mid-exposure camera, is seen by the camera at the pose
-// (R, t): its point at the mid frame's inverse depth there, then once more at the inverse depth
-// where that lands (the view and the mid frame see nearly the same point); rho_used: the second.
+// Where pixel (x, y), ray direction R d in the mid-exposure camera (d its own), is seen by the
+// camera at the pose (R, t): its point at the mid frame's inverse depth there, then once more at
+// the inverse depth where that lands (the view and the mid frame see nearly the same point);
+// rho_used: the second.
 Eigen::Vector2d reproject(const PinholeCamera& camera, const cv::Mat& inverse_depth, int x, int y,
-                          const Vector3& d, const Matrix3& R, const Vector3& t, double* rho_used) {
-  const Vector3 Rd = R * d;
+                          const Vector3& Rd, const Vector3& t, double* rho_used) {
   double rho = inverseDepthAt(camera, inverse_depth, x, y);
   const Eigen::Vector2d q = nerf::projectPoint(camera, Rd + rho * t);
   rho = inverseDepthAt(camera, inverse_depth, q.x(), q.y());
@@ -97,11 +97,34 @@ Eigen::Vector2d reproject(const PinholeCamera& camera, const cv::Mat& inverse_de
   return nerf::projectPoint(camera, Rd + rho * t);
 }
 
+// How far (px) a view's sample moves on the mid image per unit of the inverse depth it is taken
+// through, to first order (the pinhole's derivative along the epipolar line, dq / drho = f / z
+// (t_xy - X_xy / z t_z) at X = Rd + rho t); -1 behind the camera.
+// move: the derivative itself, where given.
+double moveRate(const PinholeCamera& camera, const Vector3& Rd, const Vector3& t, double rho,
+                Eigen::Vector2d* move = nullptr) {
+  const Vector3 X = Rd + rho * t;
+  if (!(X.z() > 0)) return -1;
+  const double iz = 1 / X.z();
+  const double mx = camera.fx * iz * (t.x() - X.x() * iz * t.z()),
+               my = camera.fy * iz * (t.y() - X.y() * iz * t.z());
+  if (move) *move = {mx, my};
+  return std::sqrt(mx * mx + my * my);
+}
+
 // How far (px) the inverse depth where a view's sample landed (reproject's q) would move it once
 // more, from which the sample is taken as seen across a depth edge (PixelGridProblem::across_):
 // half a pixel, the cells' own resolution (measured at 0.25 and 1 px too, on four natural scenes
 // with occlusions, within 0.1 dB of it).
 constexpr double kDepthEdgePx = 0.5;
+
+// The widest parallax between the layers (px) over which a view's pixel looks for a nearer or a
+// farther surface than its lookups found.
+constexpr int kMostParallax = 48;
+
+// The layer behind's cells reach this many cells beyond its samples' stencils, so that the motion's
+// refinements, which move the samples, find cells there.
+constexpr int kBehindApron = 2;
 
 // Whether the view's sample at q, taken through inverse depth rho_used, is seen across a depth
 // edge: the mid frame's inverse depth at q moves it more than kDepthEdgePx. The view then looks
@@ -111,18 +134,12 @@ bool acrossDepthEdge(const PinholeCamera& camera, const cv::Mat& inverse_depth, 
                      const Vector3& t, const Eigen::Vector2d& q, double rho_used) {
   const double rho = inverseDepthAt(camera, inverse_depth, q.x(), q.y());
   if (rho == rho_used) return false;
-  // The move to first order (the pinhole's derivative along the epipolar line, dq / drho = f / z
-  // (t_xy - X_xy / z t_z) at X = Rd + rho_used t), before the projection: under a quarter of
-  // kDepthEdgePx (a margin for the lens's distortion and the curve) it is not across. On a smooth
-  // depth (a plane's) neighbouring pixels' depths differ a little everywhere, and projecting every
-  // sample cost the whole run 10%.
-  const Vector3 X = Rd + rho_used * t;
-  if (X.z() > 0) {
-    const double iz = 1 / X.z();
-    const double mx = camera.fx * iz * (t.x() - X.x() * iz * t.z()),
-                 my = camera.fy * iz * (t.y() - X.y() * iz * t.z());
-    if (std::abs(rho - rho_used) * std::hypot(mx, my) < 0.25 * kDepthEdgePx) return false;
-  }
+  // The move to first order (moveRate), before the projection: under a quarter of kDepthEdgePx (a
+  // margin for the lens's distortion and the curve) it is not across. On a smooth depth (a plane's)
+  // neighbouring pixels' depths differ a little everywhere, and projecting every sample cost the
+  // whole run 10%.
+  const double rate = moveRate(camera, Rd, t, rho_used);
+  if (rate >= 0 && std::abs(rho - rho_used) * rate < 0.25 * kDepthEdgePx) return false;
   return (nerf::projectPoint(camera, Rd + rho * t) - q).norm() > kDepthEdgePx;
 }
 
@@ -149,7 +166,7 @@ double PixelGridProblem::longestImagePath(const PinholeCamera& camera, const Tra
       Eigen::Vector2d last;
       for (size_t k = 0; k < rotations.size(); ++k) {
         const Eigen::Vector2d q =
-            reproject(camera, inverse_depth, x, y, d, rotations[k], translations[k], nullptr);
+            reproject(camera, inverse_depth, x, y, rotations[k] * d, translations[k], nullptr);
         if (k > 0) path += (q - last).norm();
         last = q;
       }
@@ -167,6 +184,75 @@ double PixelGridProblem::acrossShare() const {
   if (across_.empty()) return 0;
   return static_cast<double>(std::count(across_.begin(), across_.end(), uint8_t{1})) /
          static_cast<double>(across_.size());
+}
+
+double PixelGridProblem::behindShare() const {
+  if (taps_.empty()) return 0;
+  const auto count = std::count_if(taps_.begin(), taps_.end(), behind);
+  return static_cast<double>(count) / static_cast<double>(taps_.size());
+}
+
+std::array<size_t, 4> PixelGridProblem::corners(const Taps& t) const {
+  if (t.index >= 0) {
+    const auto i = static_cast<size_t>(t.index), W = static_cast<size_t>(canvas_w_);
+    return {i, i + 1, i + W, i + W + 1};
+  }
+  const auto i = static_cast<size_t>(-t.index - 1), W = static_cast<size_t>(behind_w_);
+  const size_t front = static_cast<size_t>(canvas_w_) * canvas_h_;
+  return {front + static_cast<size_t>(behind_slot_[i]),
+          front + static_cast<size_t>(behind_slot_[i + 1]),
+          front + static_cast<size_t>(behind_slot_[i + W]),
+          front + static_cast<size_t>(behind_slot_[i + W + 1])};
+}
+
+void PixelGridProblem::sampleBehind(const double* x, const Taps& t, double* out) const {
+  const int C = channels_;
+  const std::array<size_t, 4> at = corners(t);
+  const double w00 = (1 - t.ay) * (1 - t.ax), w01 = (1 - t.ay) * t.ax, w10 = t.ay * (1 - t.ax),
+               w11 = t.ay * t.ax;
+  for (int c = 0; c < C; ++c) {
+    out[c] = w00 * x[at[0] * C + c] + w01 * x[at[1] * C + c] + w10 * x[at[2] * C + c] +
+             w11 * x[at[3] * C + c];
+  }
+}
+
+void PixelGridProblem::sampleTaps(const double* x, const Taps& t, double* out) const {
+  if (behind(t))
+    sampleBehind(x, t, out);
+  else
+    sample(x, canvas_w_, channels_, t, out);
+}
+
+bool PixelGridProblem::behindHolds(const Eigen::Vector2d& q) const {
+  if (allocating_) return true;
+  if (behind_slot_.empty()) return false;
+  const Taps t = tapsAt(q.x() + margin_, q.y() + margin_, behind_w_, behind_h_);
+  const auto i = static_cast<size_t>(t.index), W = static_cast<size_t>(behind_w_);
+  return behind_slot_[i] >= 0 && behind_slot_[i + 1] >= 0 && behind_slot_[i + W] >= 0 &&
+         behind_slot_[i + W + 1] >= 0;
+}
+
+void PixelGridProblem::allocateBehind() {
+  // Every stencil's four cells, and kBehindApron cells around them, in the canvas's order.
+  cv::Mat used = cv::Mat::zeros(behind_h_, behind_w_, CV_8U);
+  for (const Taps& t : taps_) {
+    if (!behind(t)) continue;
+    const int i = -t.index - 1, x = i % behind_w_, y = i / behind_w_;
+    used(cv::Rect(x, y, 2, 2)).setTo(1);
+  }
+  if (cv::countNonZero(used) == 0) return;
+  cv::dilate(used, used, cv::Mat::ones(2 * kBehindApron + 1, 2 * kBehindApron + 1, CV_8U));
+  behind_slot_.assign(static_cast<size_t>(behind_w_) * behind_h_, -1);
+  behind_cell_.clear();
+  for (int y = 0; y < behind_h_; ++y) {
+    for (int x = 0; x < behind_w_; ++x) {
+      if (!used.at<uint8_t>(y, x)) continue;
+      const int cell = y * behind_w_ + x;
+      behind_slot_[static_cast<size_t>(cell)] = static_cast<int>(behind_cell_.size());
+      behind_cell_.push_back(cell);
+    }
+  }
+  findBlockRows();
 }
 
 double PixelGridProblem::eventPenalty(double r, double* weight) const {
@@ -316,7 +402,69 @@ PixelGridProblem::PixelGridProblem(const Observation& obs, const PinholeCamera& 
   const int S = options_.subdivision;
   canvas_w_ = (W + 2 * margin_) * S;
   canvas_h_ = (H + 2 * margin_) * S;
+  behind_w_ = W + 2 * margin_;
+  behind_h_ = H + 2 * margin_;
+
+  // The surfaces a view's pixel may see besides the one its lookups settle on: the nearest and
+  // the farthest inverse depth within the layers' parallax (how far apart the map's nearest and
+  // farthest inverse depths put a pixel in any view, on a 16 x 16 grid of pixels; at most
+  // kMostParallax px).
+  double lowest = 0, highest = 0;
+  cv::minMaxLoc(inverse_depth_, &lowest, &highest);
+  double parallax = 0;
+  for (int k = 0; k < views_ && options_.occlusion && highest > lowest; ++k) {
+    const SE3 pose = motion_.poseAt(times_us_[static_cast<size_t>(k)]);
+    const Matrix3 R = pose.rotationMatrix();
+    constexpr int kGrid = 16;
+    for (int j = 0; j < kGrid; ++j) {
+      for (int i = 0; i < kGrid; ++i) {
+        const Vector3 Rd = R * nerf::pixelDirection(camera_, (2 * i + 1) * W / (2 * kGrid),
+                                                    (2 * j + 1) * H / (2 * kGrid));
+        const double apart = (nerf::projectPoint(camera_, Rd + highest * pose.translation()) -
+                              nerf::projectPoint(camera_, Rd + lowest * pose.translation()))
+                                 .norm();
+        if (std::isfinite(apart)) parallax = std::max(parallax, apart);
+      }
+    }
+  }
+  // Twice the most any view moves a pixel per unit of inverse depth, a bound for the candidates'
+  // first test.
+  most_move_ = highest > lowest ? 2 * parallax / (highest - lowest) : 0;
+  if (options_.occlusion && parallax > kDepthEdgePx) {
+    // Only around a depth edge: two neighbouring pixels whose inverse depths differ by what could
+    // move a view's sample by more than kDepthEdgePx. Elsewhere the surface is taken as continuous
+    // (a slant's neighbours differ a little everywhere), and its own depth is both.
+    const double jump = kDepthEdgePx / (0.5 * most_move_);
+    cv::Mat edge = cv::Mat::zeros(H, W, CV_8U);
+    for (int y = 0; y < H; ++y) {
+      const float* row = inverse_depth_.ptr<float>(y);
+      const float* below = inverse_depth_.ptr<float>(std::min(y + 1, H - 1));
+      uint8_t* out = edge.ptr<uint8_t>(y);
+      for (int x = 0; x < W; ++x) {
+        if (std::abs(row[std::min(x + 1, W - 1)] - row[x]) > jump ||
+            std::abs(below[x] - row[x]) > jump)
+          out[x] = 1;
+      }
+    }
+    if (cv::countNonZero(edge) > 0) {
+      const int radius = std::min(kMostParallax, static_cast<int>(std::ceil(parallax)));
+      const cv::Mat window = cv::Mat::ones(2 * radius + 1, 2 * radius + 1, CV_8U);
+      cv::dilate(inverse_depth_, nearest_, window, cv::Point(-1, -1), 1, cv::BORDER_REPLICATE);
+      cv::erode(inverse_depth_, farthest_, window, cv::Point(-1, -1), 1, cv::BORDER_REPLICATE);
+      cv::Mat near_edge;
+      cv::dilate(edge, near_edge, window, cv::Point(-1, -1), 1, cv::BORDER_REPLICATE);
+      inverse_depth_.copyTo(nearest_, near_edge == 0);
+      inverse_depth_.copyTo(farthest_, near_edge == 0);
+    }
+  }
+  // The layer behind's cells where the views' samples at this motion need them.
+  occluding_ = !nearest_.empty();
+  allocating_ = occluding_;
   buildTaps();
+  if (allocating_) {
+    allocating_ = false;
+    allocateBehind();
+  }
 
   // The blurry frame, and the events accumulated from mid-exposure to each view's time.
   obs.blurry.image.convertTo(blurry_, CV_MAKETYPE(CV_32F, channels_));
@@ -351,13 +499,20 @@ void PixelGridProblem::buildTaps() {
 #pragma omp parallel for schedule(static)
     for (int y = 0; y < H; ++y) {
       for (int x = 0; x < W; ++x) {
-        const size_t pixel = static_cast<size_t>(y) * W + x;
-        double rho_used = 0;
-        const Eigen::Vector2d q = cellOf(x, y, R, pose.translation(), &rho_used);
-        taps_[viewSlot(k, pixel)] =
-            tapsAt(cellCoordinate(q.x()), cellCoordinate(q.y()), canvas_w_, canvas_h_);
-        across_[viewSlot(k, pixel)] = acrossDepthEdge(
-            camera_, inverse_depth_, R * directions_[pixel], pose.translation(), q, rho_used);
+        const size_t pixel = static_cast<size_t>(y) * W + x, slot = viewSlot(k, pixel);
+        if (!occluding_) {  // the two lookups alone (viewSample's first part, inline: 5% a frame)
+          const Vector3 Rd = R * directions_[pixel];
+          double rho_used = 0;
+          const Eigen::Vector2d q =
+              reproject(camera_, inverse_depth_, x, y, Rd, pose.translation(), &rho_used);
+          taps_[slot] = tapsAt(cellCoordinate(q.x()), cellCoordinate(q.y()), canvas_w_, canvas_h_);
+          across_[slot] =
+              acrossDepthEdge(camera_, inverse_depth_, Rd, pose.translation(), q, rho_used);
+          continue;
+        }
+        const ViewSample s = viewSample(x, y, R, pose.translation());
+        taps_[slot] = tapsOf(s.q, s.behind);
+        across_[slot] = s.across;
       }
     }
   }
@@ -365,13 +520,22 @@ void PixelGridProblem::buildTaps() {
   for (size_t pixel = 0; pixel < N; ++pixel) {
     for (int k = 0; k < views_; ++k) across_pixels_[pixel] |= across_[viewSlot(k, pixel)];
   }
+  findBlockRows();
+}
+
+void PixelGridProblem::findBlockRows() {
+  const int W = camera_.width;
   // The canvas rows each block of the frame's rows reaches: its views' stencils (two rows each)
   // and its pixels' own cells at mid-exposure.
+  // The cells of the layer behind each reaches, likewise.
   const int S = options_.subdivision;
+  const auto front = static_cast<size_t>(canvas_w_) * canvas_h_;
   block_rows_.resize(kRowBlocks);
+  block_behind_.assign(kRowBlocks, {0, 0});
 #pragma omp parallel for schedule(static)
   for (int block = 0; block < kRowBlocks; ++block) {
     int first = canvas_h_, last = 0;
+    int first_behind = behindCells(), last_behind = 0;
     for (int y = blockBegin(block); y < blockBegin(block + 1); ++y) {
       first = std::min(first, (y + margin_) * S);
       last = std::max(last, (y + margin_) * S + 1);
@@ -379,18 +543,85 @@ void PixelGridProblem::buildTaps() {
                          static_cast<std::ptrdiff_t>(viewSlot(0, static_cast<size_t>(y) * W)),
                  end = begin + static_cast<std::ptrdiff_t>(W) * views_;
       for (auto t = begin; t != end; ++t) {
-        first = std::min(first, t->index / canvas_w_);
-        last = std::max(last, t->index / canvas_w_ + 2);
+        if (!behind(*t)) {
+          first = std::min(first, t->index / canvas_w_);
+          last = std::max(last, t->index / canvas_w_ + 2);
+        } else if (layered()) {
+          for (const size_t cell : corners(*t)) {
+            const int slot = static_cast<int>(cell - front);
+            first_behind = std::min(first_behind, slot);
+            last_behind = std::max(last_behind, slot + 1);
+          }
+        }
       }
     }
     block_rows_[static_cast<size_t>(block)] = {first, std::max(first, last)};
+    block_behind_[static_cast<size_t>(block)] = {first_behind, std::max(first_behind, last_behind)};
   }
 }
 
 Eigen::Vector2d PixelGridProblem::cellOf(int x, int y, const Matrix3& R, const Vector3& t,
                                          double* rho_used) const {
   return reproject(camera_, inverse_depth_, x, y,
-                   directions_[static_cast<size_t>(y) * camera_.width + x], R, t, rho_used);
+                   R * directions_[static_cast<size_t>(y) * camera_.width + x], t, rho_used);
+}
+
+PixelGridProblem::ViewSample PixelGridProblem::viewSample(int x, int y, const Matrix3& R,
+                                                          const Vector3& t) const {
+  const Vector3 Rd = R * directions_[static_cast<size_t>(y) * camera_.width + x];
+  ViewSample s;
+  s.q = reproject(camera_, inverse_depth_, x, y, Rd, t, &s.rho);
+  s.across = acrossDepthEdge(camera_, inverse_depth_, Rd, t, s.q, s.rho);
+  if (!occluding_) return s;
+  // The nearest and farthest surfaces around where the sample landed; where their parallax is
+  // under a quarter of kDepthEdgePx (to first order), the lookups' surface is the one seen.
+  const int u = nearestIndex(s.q.x(), camera_.width), v = nearestIndex(s.q.y(), camera_.height);
+  const double near = nearest_.ptr<float>(v)[u], far = farthest_.ptr<float>(v)[u];
+  if (!((near - far) * most_move_ >= 0.25 * kDepthEdgePx)) return s;  // most samples: one surface
+  Eigen::Vector2d move;
+  const double rate = moveRate(camera_, Rd, t, s.rho, &move);
+  if (rate >= 0 && (near - far) * rate < 0.25 * kDepthEdgePx) return s;
+  // The ray meets every surface whose depth where the mid image sees it moves the sample by under
+  // kDepthEdgePx; the nearest of them hides the others (a z-buffer over the candidates: the
+  // lookups' own, unless across, and the nearest and farthest around).
+  bool settled = !s.across;
+  for (const double rho : {near, far}) {
+    // A settled sample looks only for a nearer surface, and one it would move by more than
+    // kDepthEdgePx (to first order).
+    if (settled && !(rate >= 0 && (rho - s.rho) * rate > kDepthEdgePx)) continue;
+    // Where it lands to first order: a depth there that would move it by more than twice
+    // kDepthEdgePx rules it out before the projections (most candidates near an edge land on the
+    // other surface).
+    if (rate >= 0) {
+      const Eigen::Vector2d guess = s.q + (rho - s.rho) * move;
+      if (std::abs(inverseDepthAt(camera_, inverse_depth_, guess.x(), guess.y()) - rho) * rate >
+          2 * kDepthEdgePx)
+        continue;
+    }
+    const Eigen::Vector2d q = nerf::projectPoint(camera_, Rd + rho * t);
+    const double there = inverseDepthAt(camera_, inverse_depth_, q.x(), q.y());
+    const Eigen::Vector2d at = nerf::projectPoint(camera_, Rd + there * t);
+    if (!((at - q).norm() <= kDepthEdgePx) || (settled && !(there > s.rho))) continue;
+    s = {at, there, false, false};
+    settled = true;
+  }
+  if (settled || !(allocating_ || layered())) return s;
+  // No surface seen at mid-exposure meets the ray: it sees what a nearer surface hides there, the
+  // farthest surface around, from the layer behind (the background that the near surface's edge
+  // uncovers as the camera moves).
+  const Eigen::Vector2d q = nerf::projectPoint(camera_, Rd + far * t);
+  const double there = inverseDepthAt(camera_, inverse_depth_, q.x(), q.y());
+  if (there > far && (nerf::projectPoint(camera_, Rd + there * t) - q).norm() > kDepthEdgePx &&
+      behindHolds(q))
+    return {q, far, true, false};
+  return s;
+}
+
+Taps PixelGridProblem::tapsOf(const Eigen::Vector2d& q, bool behind) const {
+  if (!behind) return tapsAt(cellCoordinate(q.x()), cellCoordinate(q.y()), canvas_w_, canvas_h_);
+  Taps t = tapsAt(q.x() + margin_, q.y() + margin_, behind_w_, behind_h_);
+  t.index = -t.index - 1;
+  return t;
 }
 
 double PixelGridProblem::intensityOf(double u, double* slope) const {
@@ -417,31 +648,78 @@ std::vector<double> PixelGridProblem::intensities(const std::vector<double>& u,
   return x;
 }
 
-std::vector<double> PixelGridProblem::start(const cv::Mat& mid_image) const {
-  cv::Mat f;
-  mid_image.convertTo(f, CV_MAKETYPE(CV_64F, channels_));
-  const int C = channels_, W = f.cols, H = f.rows, S = options_.subdivision;
-  std::vector<double> x(static_cast<size_t>(size()));
-  // Cell (i, j) is at image coordinates (i / S - margin, j / S - margin); outside the image, the
-  // nearest edge's value.
-  for (int j = 0; j < canvas_h_; ++j) {
-    const double v = std::clamp(static_cast<double>(j) / S - margin_, 0.0, H - 1.0);
-    const int y0 = std::min(static_cast<int>(v), H - 2 < 0 ? 0 : H - 2),
-              y1 = std::min(y0 + 1, H - 1);
-    const double ay = v - y0;
-    for (int i = 0; i < canvas_w_; ++i) {
-      const double u = std::clamp(static_cast<double>(i) / S - margin_, 0.0, W - 1.0);
-      const int x0 = std::min(static_cast<int>(u), W - 2 < 0 ? 0 : W - 2),
-                x1 = std::min(x0 + 1, W - 1);
-      const double ax = u - x0;
-      for (int c = 0; c < C; ++c) {
-        const double value =
-            (1 - ay) *
-                ((1 - ax) * f.ptr<double>(y0)[x0 * C + c] + ax * f.ptr<double>(y0)[x1 * C + c]) +
-            ay * ((1 - ax) * f.ptr<double>(y1)[x0 * C + c] + ax * f.ptr<double>(y1)[x1 * C + c]);
-        x[(static_cast<size_t>(j) * canvas_w_ + i) * C + c] =
-            options_.log.logOf(std::max(value, 0.0));
+cv::Mat PixelGridProblem::behindStart(const cv::Mat& image) const {
+  // A pixel nearer its surroundings' nearest depth than their farthest (nearest_, farthest_) is on
+  // the near side of an edge: it takes the mean of the nearest ring of pixels around it (in
+  // Chebyshev distance) that are on the far side by its own measure; every other pixel keeps its
+  // own value.
+  const int C = channels_, W = image.cols, H = image.rows;
+  cv::Mat filled = image.clone();
+  for (int y = 0; y < H; ++y) {
+    for (int x = 0; x < W; ++x) {
+      const double near = nearest_.ptr<float>(y)[x], far = farthest_.ptr<float>(y)[x];
+      const double cut = far + 0.5 * (near - far);
+      if (inverse_depth_.ptr<float>(y)[x] <= cut) continue;
+      for (int ring = 1; ring <= kMostParallax + 1; ++ring) {
+        double sum[3] = {0, 0, 0};
+        int count = 0;
+        const auto take = [&](int u, int v) {
+          if (u < 0 || v < 0 || u >= W || v >= H || !(inverse_depth_.ptr<float>(v)[u] <= cut))
+            return;
+          for (int c = 0; c < C; ++c) sum[c] += image.ptr<double>(v)[u * C + c];
+          ++count;
+        };
+        for (int d = -ring; d <= ring; ++d) {
+          take(x + d, y - ring);
+          take(x + d, y + ring);
+          if (d > -ring && d < ring) {
+            take(x - ring, y + d);
+            take(x + ring, y + d);
+          }
+        }
+        if (count == 0) continue;
+        for (int c = 0; c < C; ++c) filled.ptr<double>(y)[x * C + c] = sum[c] / count;
+        break;
       }
+    }
+  }
+  return filled;
+}
+
+double PixelGridProblem::canvasValue(const cv::Mat& f, int i, int j, int c, int S) const {
+  const int C = channels_, W = f.cols, H = f.rows;
+  const double v = std::clamp(static_cast<double>(j) / S - margin_, 0.0, H - 1.0);
+  const int y0 = std::min(static_cast<int>(v), H - 2 < 0 ? 0 : H - 2), y1 = std::min(y0 + 1, H - 1);
+  const double ay = v - y0;
+  const double u = std::clamp(static_cast<double>(i) / S - margin_, 0.0, W - 1.0);
+  const int x0 = std::min(static_cast<int>(u), W - 2 < 0 ? 0 : W - 2), x1 = std::min(x0 + 1, W - 1);
+  const double ax = u - x0;
+  return (1 - ay) *
+             ((1 - ax) * f.ptr<double>(y0)[x0 * C + c] + ax * f.ptr<double>(y0)[x1 * C + c]) +
+         ay * ((1 - ax) * f.ptr<double>(y1)[x0 * C + c] + ax * f.ptr<double>(y1)[x1 * C + c]);
+}
+
+std::vector<double> PixelGridProblem::start(const cv::Mat& mid_image) const {
+  cv::Mat front;
+  mid_image.convertTo(front, CV_MAKETYPE(CV_64F, channels_));
+  const int C = channels_;
+  std::vector<double> x(static_cast<size_t>(size()));
+  for (int j = 0; j < canvas_h_; ++j) {
+    for (int i = 0; i < canvas_w_; ++i) {
+      for (int c = 0; c < C; ++c) {
+        x[(static_cast<size_t>(j) * canvas_w_ + i) * C + c] =
+            options_.log.logOf(std::max(canvasValue(front, i, j, c, options_.subdivision), 0.0));
+      }
+    }
+  }
+  if (!layered()) return x;
+  const cv::Mat behind = behindStart(front);
+  const size_t first = static_cast<size_t>(canvas_w_) * canvas_h_ * C;
+  for (size_t slot = 0; slot < behind_cell_.size(); ++slot) {
+    const int cell = behind_cell_[slot];
+    for (int c = 0; c < C; ++c) {
+      x[first + slot * C + c] = options_.log.logOf(
+          std::max(canvasValue(behind, cell % behind_w_, cell / behind_w_, c, 1), 0.0));
     }
   }
   return x;
@@ -475,7 +753,8 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
   if (gradient) gradient->resize(x.size());
   // Each row block's sums and gradient on its own (block_rows_), added in block order.
   const auto row = static_cast<size_t>(canvas_w_) * C;
-  std::vector<std::vector<double>> partial(gradient ? kRowBlocks : 0);
+  std::vector<std::vector<double>> partial(gradient ? kRowBlocks : 0),
+      partial_behind(gradient && layered() ? kRowBlocks : 0);
   std::array<double, kRowBlocks> blur_sums{}, event_sums{};
 #pragma omp parallel
   {
@@ -497,6 +776,15 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
         partial[bi].assign(static_cast<size_t>(block_rows_[bi][1] - block_rows_[bi][0]) * row, 0.0);
         g = partial[bi].data();
       }
+      // Likewise over the layer behind's cells it reaches, from the first.
+      double* g_behind = nullptr;
+      const size_t behind_skipped = static_cast<size_t>(canvas_w_) * canvas_h_ +
+                                    (layered() ? static_cast<size_t>(block_behind_[bi][0]) : 0);
+      if (!partial_behind.empty()) {
+        partial_behind[bi].assign(
+            static_cast<size_t>(block_behind_[bi][1] - block_behind_[bi][0]) * C, 0.0);
+        g_behind = partial_behind[bi].data();
+      }
       for (int y = blockBegin(block); y < blockBegin(block + 1); ++y) {
         for (int px = 0; px < W; ++px) {
           const size_t pixel = static_cast<size_t>(y) * W + px;
@@ -509,7 +797,11 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
           for (int k = 0; k < V; ++k) {
             const auto ki = static_cast<size_t>(k);
             double* out = &colour[ki * C];
-            sample(x.data(), canvas_w_, C, taps_[viewSlot(k, pixel)], out);
+            const Taps& t = taps_[viewSlot(k, pixel)];
+            if (behind(t))
+              sampleBehind(x.data(), t, out);
+            else
+              sample(x.data(), canvas_w_, C, t, out);
             for (int c = 0; c < C; ++c) sum[c] += out[c];
             greys[ki] = std::max(0.0, nerf::greyOf(out, C));
             logs[ki] = log.logOf(greys[ki]);
@@ -560,8 +852,18 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
             nerf::greyBackward(d_grey[static_cast<size_t>(k)], C, d_colour);
             for (int c = 0; c < C; ++c) d_colour[c] += d_sum[c];
             Taps t = taps_[viewSlot(k, pixel)];
-            t.index -= skipped;
-            sampleBackward(g, canvas_w_, C, t, d_colour);
+            if (!behind(t)) {
+              t.index -= skipped;
+              sampleBackward(g, canvas_w_, C, t, d_colour);
+              continue;
+            }
+            const std::array<size_t, 4> at = corners(t);
+            const double w[4] = {(1 - t.ay) * (1 - t.ax), (1 - t.ay) * t.ax, t.ay * (1 - t.ax),
+                                 t.ay * t.ax};
+            for (int n = 0; n < 4; ++n) {
+              double* cell = g_behind + (at[static_cast<size_t>(n)] - behind_skipped) * C;
+              for (int c = 0; c < C; ++c) cell[c] += w[n] * d_colour[c];
+            }
           }
           nerf::greyBackward(d_mid_log * log.logSlope(mid_grey), C, d_colour);
           for (int c = 0; c < C; ++c) g[mid - static_cast<size_t>(skipped) * C + c] += d_colour[c];
@@ -582,8 +884,11 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
   // gradient from all four. In colour the chroma (each channel's log less the channels' mean) is
   // smoothed more (chroma_smoothness): the events see brightness only, so nothing but the blur
   // term holds it.
-  const double scale = options_.smoothness / static_cast<double>(u.size());
-  const double chroma = C > 1 ? options_.chroma_smoothness / static_cast<double>(u.size()) : 0.0;
+  // The layer behind is smoothed alike between its own neighbouring cells (behindSmoothness), with
+  // the weights of the canvas's.
+  const double cells = static_cast<double>(canvas_w_) * canvas_h_ * C;
+  const double scale = options_.smoothness / cells;
+  const double chroma = C > 1 ? options_.chroma_smoothness / cells : 0.0;
   // The penalty's derivative with respect to the difference u[b + c] - u[a + c] of two
   // neighbouring cells a and b, in each channel; adds the penalty to `sum`.
   const auto pair = [&](size_t a, size_t b, double* d_pair, double& sum) {
@@ -642,7 +947,44 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
     }
     return smooth_row;
   });
-  const double blur = blur_sum * blur_scale, event = event_sum + smooth;
+  // The layer behind: the smoothness between its neighbouring cells (each cell's right and lower
+  // neighbour where that has a cell there too), and its blocks' gradients added in block order.
+  double smooth_behind = 0;
+  if (layered()) {
+    const size_t first = static_cast<size_t>(canvas_w_) * canvas_h_ * C, B = behind_cell_.size();
+    std::vector<double> d_behind(gradient ? B * C : 0, 0.0);
+    double d_pair[3];
+    for (size_t slot = 0; slot < B; ++slot) {
+      const int cell = behind_cell_[slot];
+      const int right = cell % behind_w_ + 1 < behind_w_ ? cell + 1 : -1,
+                below = cell / behind_w_ + 1 < behind_h_ ? cell + behind_w_ : -1;
+      for (const int next : {right, below}) {
+        const int other = next < 0 ? -1 : behind_slot_[static_cast<size_t>(next)];
+        if (other < 0) continue;
+        pair(first + slot * C, first + static_cast<size_t>(other) * C, d_pair, smooth_behind);
+        if (!gradient) continue;
+        for (int c = 0; c < C; ++c) {
+          d_behind[slot * C + c] -= d_pair[c];
+          d_behind[static_cast<size_t>(other) * C + c] += d_pair[c];
+        }
+      }
+    }
+    if (gradient) {
+      for (size_t slot = 0; slot < B; ++slot) {
+        for (int c = 0; c < C; ++c) {
+          double sum = 0;
+          for (size_t block = 0; block < partial_behind.size(); ++block) {
+            const auto [from, to] = block_behind_[block];
+            if (static_cast<int>(slot) >= from && static_cast<int>(slot) < to)
+              sum += partial_behind[block][(slot - static_cast<size_t>(from)) * C + c];
+          }
+          const size_t i = first + slot * C + c;
+          (*gradient)[i] = sum * slope[i] + d_behind[slot * C + c];
+        }
+      }
+    }
+  }
+  const double blur = blur_sum * blur_scale, event = event_sum + smooth + smooth_behind;
   if (terms) *terms = {blur / blur_weight_, event / options_.beta};
   return blur + event;
 }
@@ -859,18 +1201,20 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
           for (int c = 0; c < C; ++c) jb[static_cast<size_t>(c)] = Eigen::VectorXd::Zero(dim);
           for (int k = 0; k < V; ++k) {
             const auto ki = static_cast<size_t>(k);
-            double rho;
-            const Eigen::Vector2d q = cellOf(px, y, rotations[ki], poses[ki].translation(), &rho);
-            const Taps t =
-                tapsAt(cellCoordinate(q.x()), cellCoordinate(q.y()), canvas_w_, canvas_h_);
-            const double* a = x.data() + static_cast<size_t>(t.index) * C;
-            const double* b = a + static_cast<size_t>(canvas_w_) * C;
+            const ViewSample s = viewSample(px, y, rotations[ki], poses[ki].translation());
+            const Eigen::Vector2d& q = s.q;
+            const double rho = s.rho;
+            const Taps t = tapsOf(q, s.behind);
+            const std::array<size_t, 4> at = corners(t);  // top-left, top-right, bottom-...
+            const double *a = x.data() + at[0] * C, *a1 = x.data() + at[1] * C,
+                         *b = x.data() + at[2] * C, *b1 = x.data() + at[3] * C;
+            const int cells = s.behind ? 1 : S;  // per pixel: the layer behind has one
             double value[3], du[3], dv[3];
             for (int c = 0; c < C; ++c) {
-              value[c] = (1 - t.ay) * ((1 - t.ax) * a[c] + t.ax * a[C + c]) +
-                         t.ay * ((1 - t.ax) * b[c] + t.ax * b[C + c]);
-              du[c] = S * ((1 - t.ay) * (a[C + c] - a[c]) + t.ay * (b[C + c] - b[c]));
-              dv[c] = S * ((1 - t.ax) * (b[c] - a[c]) + t.ax * (b[C + c] - a[C + c]));
+              value[c] = (1 - t.ay) * ((1 - t.ax) * a[c] + t.ax * a1[c]) +
+                         t.ay * ((1 - t.ax) * b[c] + t.ax * b1[c]);
+              du[c] = cells * ((1 - t.ay) * (a1[c] - a[c]) + t.ay * (b1[c] - b[c]));
+              dv[c] = cells * ((1 - t.ax) * (b[c] - a[c]) + t.ax * (b1[c] - a1[c]));
               sum[c] += value[c];
             }
             Eigen::Matrix<double, 2, 6> dq;
@@ -1014,7 +1358,7 @@ double PixelGridProblem::heldOutEventTerm(const std::vector<double>& u) const {
       const double mid_log = log.logOf(std::max(0.0, nerf::greyOf(&x[mid], C)));
       for (int k = 0; k < V; ++k) {
         double value[3];
-        sample(x.data(), canvas_w_, C, taps_[viewSlot(k, pixel)], value);
+        sampleTaps(x.data(), taps_[viewSlot(k, pixel)], value);
         logs[static_cast<size_t>(k)] = log.logOf(std::max(0.0, nerf::greyOf(value, C)));
       }
       referenceLevels(logs.data(), mid_log, reference.data(), source.data());
@@ -1042,7 +1386,7 @@ cv::Mat PixelGridProblem::blurResiduals(const std::vector<double>& u) const {
       const size_t pixel = static_cast<size_t>(y) * W + px;
       double sum[3] = {0, 0, 0}, value[3];
       for (int k = 0; k < V; ++k) {
-        sample(x.data(), canvas_w_, C, taps_[viewSlot(k, pixel)], value);
+        sampleTaps(x.data(), taps_[viewSlot(k, pixel)], value);
         for (int c = 0; c < C; ++c) sum[c] += value[c];
       }
       double squares = 0;
@@ -1120,10 +1464,10 @@ cv::Mat PixelGridProblem::render(const std::vector<double>& u, int64_t t_us) con
   for (int y = 0; y < H; ++y) {
     float* row = out.ptr<float>(y);
     for (int px = 0; px < W; ++px) {
-      const Eigen::Vector2d q = cellOf(px, y, R, pose.translation());
-      const Taps t = tapsAt(cellCoordinate(q.x()), cellCoordinate(q.y()), canvas_w_, canvas_h_);
+      const ViewSample s = viewSample(px, y, R, pose.translation());
+      const Taps t = tapsOf(s.q, s.behind);
       double value[3];
-      sample(x.data(), canvas_w_, C, t, value);
+      sampleTaps(x.data(), t, value);
       for (int c = 0; c < C; ++c) row[px * C + c] = static_cast<float>(value[c]);
     }
   }

@@ -95,6 +95,7 @@ Contrast contrastFromMotion(const Observation& obs, const PinholeCamera& camera,
   // kSearchViews views, and one EDI model every c's frame.
   const double step = std::log(2.0) / 3;
   po.max_views = std::max(po.min_views, kSearchViews);
+  po.occlusion = false;  // its blur term is a score between c's, not the image
   const PixelGridProblem problem(obs, camera, motion, inverse_depth, Contrast{1, ratio}, po);
   const Frame& blurry = obs.blurry;
   const EdiModel edi(obs.events.view(), blurry.image.cols, blurry.image.rows,
@@ -153,6 +154,8 @@ SolvedContrast contrastFromSolves(
   // out the same (37.68 against 37.65 dB), in 6.7 s of search a frame against 8.4 and 15.5 s in
   // all against 20.1 (BENCHMARKS.md, "The sensor's reference level").
   po.hysteresis = 0;
+  // Nor the second layer's cells (PixelGridOptions::occlusion): a short solve's misfit scores a c.
+  po.occlusion = false;
   const int64_t t0 = given.blurry.exposure_start_us, t1 = given.blurry.exposure_end_us;
   const cv::Mat counts = exposureEventCounts(given);
   const double events = cv::sum(counts)[0], channels = given.blurry.image.channels();

@@ -705,7 +705,8 @@ GridScene gridScene(bool colour) {
 }
 
 // The pixel grid's loss against central differences in double, on a scene that moves with
-// rotation and translation over a slanted inverse depth, with two cells per pixel, grey and colour
+// rotation and translation over a slanted inverse depth and over a step in it (a near half before
+// a far one: the layer behind's cells), with two cells per pixel, grey and colour
 // (with the chroma's smoothness), under both log mappings, with the events against the log level
 // and against the sensor's reference level (hysteresis), and a block of the frame clipped at the
 // top (its re-blur above the top costs nothing): every checked cell's gradient (inside the image,
@@ -720,9 +721,13 @@ TEST(PixelGrid, GradientsMatchCentralDifferences) {
         GridScene scene = gridScene(colour);
         scene.obs.blurry.image(cv::Rect(4, 3, 8, 6)).setTo(cv::Scalar::all(1.0));
         const Observation& obs = scene.obs;
+        // The slant with a grey scene, the step with a colour one, each under both mappings.
+        const bool step = colour;
         cv::Mat inverse_depth(18, 24, CV_32F);
         for (int y = 0; y < 18; ++y) {
-          for (int x = 0; x < 24; ++x) inverse_depth.at<float>(y, x) = 0.3f + 0.01f * (x + y);
+          for (int x = 0; x < 24; ++x) {
+            inverse_depth.at<float>(y, x) = step ? (x < 12 ? 0.3f : 3.0f) : 0.3f + 0.01f * (x + y);
+          }
         }
         PixelGridOptions o;
         o.beta = 0.3;
@@ -735,6 +740,7 @@ TEST(PixelGrid, GradientsMatchCentralDifferences) {
         PixelGridProblem problem(obs, scene.camera, scene.motion, inverse_depth,
                                  Contrast{0.2, 0.25}, o);
         ASSERT_GT(problem.margin(), 0);
+        ASSERT_EQ(problem.layered(), step);
         if (colour) problem.holdOutEvents();  // the held-out pixels' events out of the loss
         std::vector<double> x = problem.start(obs.blurry.image);
         std::mt19937_64 rng(7);
@@ -752,6 +758,17 @@ TEST(PixelGrid, GradientsMatchCentralDifferences) {
         const size_t mid =
             problem.margin() * 2 * (24 + 2 * problem.margin()) * 2 + 2 * problem.margin();
         for (const size_t i : {mid, mid + 2, mid + 8}) checks.push_back(i * (colour ? 3 : 1));
+        // Every channel of the first 20 of the layer behind's cells that the loss reaches.
+        const size_t behind =
+            x.size() - static_cast<size_t>(problem.behindCells()) * (colour ? 3 : 1);
+        size_t behind_checks = 0;
+        for (size_t i = behind; i < x.size() && behind_checks < 60; ++i) {
+          if (gradient[i] != 0.0) {
+            checks.push_back(i);
+            ++behind_checks;
+          }
+        }
+        ASSERT_EQ(behind_checks > 0, step);
         ASSERT_GT(checks.size(), 40u);
         const double h = 1e-5;
         std::vector<double> numeric;
@@ -832,14 +849,17 @@ TEST(PixelGrid, HeldOutPixelsLeaveTheEventTermAndAreScoredApart) {
 // motion's normal equations) over pieces of the work fixed whatever the thread count, in a fixed
 // order: one, two and three threads give the same image and motion gradient to the last bit, and
 // the loss falls. Three threads on two cores, where an OpenMP reduction's order of arrival would
-// show.
+// show. Over a step in depth, so that the layer behind's cells are solved too.
 TEST(PixelGrid, SameImageAtEveryThreadCount) {
   const GridScene scene = gridScene(true);
   PixelGridOptions o;
   o.subdivision = 2;
   o.event_window = 0.3;
-  const PixelGridProblem problem(scene.obs, scene.camera, scene.motion, cv::Mat(),
-                                 Contrast{0.2, 0.25}, o);
+  cv::Mat step(18, 24, CV_32F, cv::Scalar(0.4f));
+  step(cv::Rect(12, 0, 12, 18)).setTo(3.0f);
+  const PixelGridProblem problem(scene.obs, scene.camera, scene.motion, step, Contrast{0.2, 0.25},
+                                 o);
+  ASSERT_TRUE(problem.layered());
   std::vector<std::vector<double>> runs;
   std::vector<Eigen::VectorXd> motion_gradients;
   for (const int threads : {1, 2, 3}) {
@@ -868,7 +888,9 @@ TEST(PixelGrid, SameImageAtEveryThreadCount) {
 // does not hold, and its comparisons with the events leave the event term. A camera sliding along
 // x over a near half (inverse depth 1) beside a far one (0.1): no sample is flagged over one depth
 // or a smooth slant, and over the step only samples within the layers' parallax of the edge are,
-// the near layer's pixels that the slide carries across it.
+// the near layer's pixels that the slide carries across it. Each pixel's two lookups alone
+// (PixelGridOptions::occlusion off; with it, the nearest surface along the ray settles these
+// samples: the next test).
 TEST(PixelGrid, ViewsSeenAcrossADepthEdgeLeaveTheEventTerm) {
   GridScene scene = gridScene(false);
   const int64_t t0 = scene.obs.blurry.exposure_start_us, t1 = scene.obs.blurry.exposure_end_us;
@@ -880,6 +902,7 @@ TEST(PixelGrid, ViewsSeenAcrossADepthEdgeLeaveTheEventTerm) {
   const Trajectory slide = fitTrajectory(TrajectoryKind::kCubicSE3, 4, t0, t1, poses);
   PixelGridOptions o;
   o.smoothness = 0;
+  o.occlusion = false;
   const auto problemOver = [&](const cv::Mat& inverse_depth) {
     return PixelGridProblem(scene.obs, scene.camera, slide, inverse_depth, Contrast{0.2, 0.2}, o);
   };
@@ -949,6 +972,92 @@ TEST(PixelGrid, ViewsSeenAcrossADepthEdgeLeaveTheEventTerm) {
   EXPECT_GT(eventTermWith(viewTime(views - 1.5)), before.event * (1 + 1e-6));
 }
 
+// Each view's pixel sees the nearest surface its ray meets, and what the near surface hides at
+// mid-exposure from the layer behind. A camera sliding along x over a near half (inverse depth 1,
+// bright) beside a far one (0.1, dark): after mid-exposure the near half moves left over the far
+// one, and the pixels it covers render it; before, it moves right and uncovers the far half, whose
+// pixels there take the layer behind (started from the far side of the edge) and render it. With
+// the two lookups alone (occlusion off) the uncovered pixels render the near half's cells and some
+// covered ones the far half's.
+TEST(PixelGrid, AViewSeesTheNearestSurfaceAndWhatTheNearOneUncoversFromTheLayerBehind) {
+  GridScene scene = gridScene(false);
+  const int64_t t0 = scene.obs.blurry.exposure_start_us, t1 = scene.obs.blurry.exposure_end_us;
+  constexpr double kSlide = 0.5, kNear = 1.0, kFar = 0.1;
+  std::vector<StampedPose> poses;
+  for (int k = 0; k <= 8; ++k)
+    poses.push_back({t0 + (t1 - t0) * k / 8,
+                     SE3(Matrix3::Identity(), Vector3(kSlide * (k / 8.0 - 0.5), 0, 0))});
+  const Trajectory slide = fitTrajectory(TrajectoryKind::kCubicSE3, 4, t0, t1, poses);
+  cv::Mat step(18, 24, CV_32F, cv::Scalar(static_cast<float>(kFar)));
+  step(cv::Rect(12, 0, 12, 18)).setTo(static_cast<float>(kNear));
+  cv::Mat image(18, 24, CV_32F, cv::Scalar(0.2f));
+  image(cv::Rect(12, 0, 12, 18)).setTo(0.8f);
+  PixelGridOptions o;
+  const PixelGridProblem with(scene.obs, scene.camera, slide, step, Contrast{0.2, 0.2}, o);
+  o.occlusion = false;
+  const PixelGridProblem without(scene.obs, scene.camera, slide, step, Contrast{0.2, 0.2}, o);
+  ASSERT_TRUE(with.layered());
+  ASSERT_FALSE(without.layered());
+  EXPECT_GT(with.behindShare(), 0.0);
+  EXPECT_EQ(with.acrossShare(), 0.0);
+  const std::vector<double> x = with.start(image), x_without = without.start(image);
+  const auto canvas = [](const PixelGridProblem& p) {
+    return static_cast<size_t>((24 + 2 * p.margin()) * (18 + 2 * p.margin()));
+  };
+  ASSERT_EQ(x.size(), canvas(with) + static_cast<size_t>(with.behindCells()));
+  ASSERT_EQ(x_without.size(), canvas(without));
+  const double f = scene.camera.fx;
+  const int views = with.views();
+  const auto viewTime = [&](int k) {
+    return t0 + std::llround((k + 0.5) / views * static_cast<double>(t1 - t0));
+  };
+  // The first view (the camera left of mid: the image moves right) and the last (right of it).
+  const double before = slide.poseAt(viewTime(0)).translation().x(),
+               after = slide.poseAt(viewTime(views - 1)).translation().x();
+  ASSERT_LT(before, -0.2);
+  ASSERT_GT(after, 0.2);
+  // A view's pixel u at the camera's offset t sees the mid image's u + f t rho: the near half
+  // where u + f t kNear >= 12, else the far half, hidden at mid-exposure where u + f t kFar >= 12
+  // (half a pixel's margin each).
+  const cv::Mat first = with.render(x, viewTime(0)), last = with.render(x, viewTime(views - 1));
+  const cv::Mat first_without = without.render(x_without, viewTime(0)),
+                last_without = without.render(x_without, viewTime(views - 1));
+  int uncovered = 0, covered = 0, uncovered_wrong = 0, covered_wrong = 0;
+  for (int u = 0; u < 24; ++u) {
+    if (u + f * before * kFar >= 12.5 && u + f * before * kNear < 11.5) {
+      ++uncovered;  // the near half has moved off it: the far half, hidden at mid-exposure
+      for (int y = 0; y < 18; ++y) {
+        EXPECT_TRUE(with.seenBehind(0, u, y)) << "pixel " << u << ", " << y;
+        EXPECT_NEAR(first.at<float>(y, u), 0.2, 0.02) << "pixel " << u << ", " << y;
+      }
+      uncovered_wrong += std::abs(first_without.at<float>(9, u) - 0.2f) > 0.1f;
+    }
+    if (u + f * after * kNear >= 12.5 && u + f * after * kFar < 11.5) {
+      ++covered;  // the near half has moved over the far one there
+      for (int y = 0; y < 18; ++y) {
+        EXPECT_FALSE(with.seenBehind(views - 1, u, y)) << "pixel " << u << ", " << y;
+        EXPECT_NEAR(last.at<float>(y, u), 0.8, 0.02) << "pixel " << u << ", " << y;
+      }
+      covered_wrong += std::abs(last_without.at<float>(9, u) - 0.8f) > 0.1f;
+    }
+  }
+  ASSERT_GE(uncovered, 2);
+  ASSERT_GE(covered, 2);
+  EXPECT_GE(uncovered_wrong, 2);  // the lookups alone render the near half there
+  EXPECT_GE(covered_wrong, 1);
+  // The layer behind serves only views before mid-exposure, within the parallax right of the edge.
+  for (int k = 0; k < views; ++k) {
+    for (int y = 0; y < 18; ++y) {
+      for (int u = 0; u < 24; ++u) {
+        if (!with.seenBehind(k, u, y)) continue;
+        EXPECT_LT(viewTime(k), scene.obs.blurry.midExposure()) << "view " << k;
+        EXPECT_GE(u, 12) << "view " << k << " pixel " << u;
+        EXPECT_LT(u - 12, f * kSlide * 0.5 * (kNear - kFar) + 1) << "view " << k << " pixel " << u;
+      }
+    }
+  }
+}
+
 // With `converged`, the solve stops at the first step where the loss fell by less than that
 // fraction of itself over the last 10 steps (the start counting as step 0); without it, it takes
 // every step it is given.
@@ -984,9 +1093,10 @@ namespace evkit {
 namespace {
 
 // The pixel grid's gradient in the motion (the knots' right perturbations) against central
-// differences of its loss, the image fixed, on a grey and a colour scene with a block of the frame
-// clipped at the top, with the events against the log level and against the sensor's reference
-// level (whose comparisons move with the views their references come from).
+// differences of its loss, the image fixed, on a grey and a colour scene (over a step in depth,
+// with the layer behind) with a block of the frame clipped at the top, with the events against the
+// log level and against the sensor's reference level (whose comparisons move with the views their
+// references come from).
 TEST(PixelGrid, MotionGradientMatchesCentralDifferences) {
   const Threads one_thread(1);  // small parallel regions only wait on each other
   for (const bool colour : {false, true}) {
@@ -1001,8 +1111,13 @@ TEST(PixelGrid, MotionGradientMatchesCentralDifferences) {
       o.subdivision = 2;
       o.event_robust = colour ? 0.1 : 0.0;  // the pseudo-Huber and the squared penalties
       o.hysteresis = hysteresis;
-      PixelGridProblem problem(obs, scene.camera, scene.motion,
-                               cv::Mat(18, 24, CV_32F, cv::Scalar(0.4)), Contrast{0.2, 0.25}, o);
+      // In colour over a step in the inverse depth (a near half before a far one): samples from
+      // the layer behind, and the nearest surface along the rays.
+      cv::Mat inverse_depth(18, 24, CV_32F, cv::Scalar(0.4));
+      if (colour) inverse_depth(cv::Rect(12, 0, 12, 18)).setTo(3.0);
+      PixelGridProblem problem(obs, scene.camera, scene.motion, inverse_depth, Contrast{0.2, 0.25},
+                               o);
+      ASSERT_EQ(problem.layered(), colour);
       std::vector<double> u = problem.start(obs.blurry.image);
       std::mt19937_64 rng(11);
       std::uniform_real_distribution<double> jitter(-0.2, 0.2);

@@ -86,6 +86,9 @@ struct BenerfOptions {
   // 35.71 -> 38.39 dB (every scene up, +0.38 to +5.07), standard 36.53 -> 36.76, hard 33.35 ->
   // 33.64; noisy 35.80 -> 35.70 (flat areas keep more of the events' noise).
   double hysteresis = 0.5;
+  // The pixel grid's views see the nearest surface along their rays, and what a near surface hides
+  // at mid-exposure from a second layer of cells (PixelGridOptions::occlusion).
+  bool occlusion = true;
   // The pixel grid's smoothness of the log image (PixelGridOptions::smoothness). 0: chosen by the
   // events it was not fitted to. Its solve is run with the events of a quarter of the pixels held
   // out, at 0.01, 0.03 and 0.1 in turn while the held-out pixels' comparisons with mid-exposure

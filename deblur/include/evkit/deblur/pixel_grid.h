@@ -56,6 +56,12 @@ struct PixelGridOptions {
   // nothing there (the blur term's residual is min(mean of the views, B) - B). 0 or below: every
   // pixel is a mean. EdiOptions::saturated masks the same pixels (both Frame::kClipped).
   double saturated = Frame::kClipped;
+  // Where the registered depths have edges, each view's pixel sees the nearest surface its ray
+  // meets on the mid image (a z-buffer over the depths around where it lands), and what a near
+  // surface hides at mid-exposure from a second layer of cells behind the first, so that the
+  // background the near surface's edge uncovers has cells of its own (PixelGridProblem::layered).
+  // false: each pixel's two lookups alone (a cheaper problem for the thresholds' search).
+  bool occlusion = true;
   LogMapping log;
 };
 
@@ -83,8 +89,19 @@ class PixelGridProblem {
     double blur = 0, event = 0;  // the two terms' means, unweighted
   };
   // The unknowns: the canvas's log intensities (the image and its margin), row-major, channels
-  // interleaved.
-  int size() const { return canvas_w_ * canvas_h_ * channels_; }
+  // interleaved, then those of the layer behind's cells (layered()) in the canvas's order.
+  int size() const { return (canvas_w_ * canvas_h_ + behindCells()) * channels_; }
+  // Whether some view sees what a nearer surface hides at mid-exposure, so that the canvas has a
+  // second layer of cells behind the first there (the background a near surface's edge uncovers):
+  // the cells of its samples' stencils and kBehindApron cells around them.
+  bool layered() const { return !behind_cell_.empty(); }
+  int behindCells() const { return static_cast<int>(behind_cell_.size()); }
+  // The share of the views' samples taken from the layer behind: 0 where not layered().
+  double behindShare() const;
+  // Whether view `view`'s sample of pixel (x, y) is taken from the layer behind.
+  bool seenBehind(int view, int x, int y) const {
+    return behind(taps_[viewSlot(view, static_cast<size_t>(y) * camera_.width + x)]);
+  }
   int views() const { return views_; }
   int margin() const { return margin_; }
   // The longest image path of a pixel over the exposure, by the motion and the inverse depth
@@ -142,7 +159,38 @@ class PixelGridProblem {
   // inverse depth it took.
   Eigen::Vector2d cellOf(int x, int y, const Matrix3& R, const Vector3& t,
                          double* rho_used = nullptr) const;
-  void buildTaps();  // every view's stencils from the motion, and block_rows_
+  // What pixel (x, y) of the camera at the pose (R, t) sees: where on the mid image (no margin),
+  // through which inverse depth, whether from the layer behind, and whether seen across a depth
+  // edge (across_) (pixel_grid.cc).
+  struct ViewSample {
+    Eigen::Vector2d q;
+    double rho = 0;
+    bool behind = false, across = false;
+  };
+  ViewSample viewSample(int x, int y, const Matrix3& R, const Vector3& t) const;
+  // The stencil of a mid-image position on the canvas's cells, in the layer behind for `behind`
+  // (its index then -1 less the canvas's cell: behind()).
+  CanvasTaps tapsOf(const Eigen::Vector2d& q, bool behind) const;
+  static bool behind(const CanvasTaps& t) { return t.index < 0; }
+  // Whether the layer behind has cells for a stencil at q (or they are being chosen).
+  bool behindHolds(const Eigen::Vector2d& q) const;
+  // A stencil's four cells among the unknowns (top-left, top-right, bottom-left, bottom-right).
+  std::array<size_t, 4> corners(const CanvasTaps& t) const;
+  // The channels of the unknowns x at a stencil of the layer behind, and at one of either layer.
+  void sampleBehind(const double* x, const CanvasTaps& t, double* out) const;
+  void sampleTaps(const double* x, const CanvasTaps& t, double* out) const;
+  // The image's value at cell (i, j) of a canvas with S cells per pixel (image coordinates (i / S -
+  // margin, j / S - margin), bilinear; outside the image the nearest edge's value), channel c.
+  double canvasValue(const cv::Mat& image, int i, int j, int c, int S) const;
+  // Gives the layer behind cells where the views' samples need them (after buildTaps with
+  // allocating_), and the blocks' ranges of them.
+  void allocateBehind();
+  // The start of the layer behind: the mid image with each depth edge's far side carried into its
+  // near side.
+  cv::Mat behindStart(const cv::Mat& mid_image) const;
+
+  void buildTaps();      // every view's stencils from the motion, and block_rows_
+  void findBlockRows();  // block_rows_ from the stencils
   // The frame's rows in kRowBlocks blocks whatever the thread count: each block's sums and its
   // share of the gradient (over the canvas rows its views reach, block_rows_) are its own, and the
   // blocks are added in order, so that one thread and many give the same bits.
@@ -200,6 +248,21 @@ class PixelGridProblem {
   int64_t mid_us_ = 0;
   double blur_px_ = 0, blur_weight_ = 1;
   int views_ = 0, margin_ = 0, canvas_w_ = 0, canvas_h_ = 0;
+  // The layer behind, on a grid of one cell per pixel and the margin (behind_w_ x behind_h_: the
+  // background a near surface uncovers is seen briefly, at its edge, and finer cells there only
+  // slowed the solve): per grid cell its place among the unknowns' cells there (-1: none; empty:
+  // no layer), per such cell its grid cell, per row block the range of them its samples reach, and
+  // whether buildTaps takes samples from it without cells (while the cells are chosen).
+  int behind_w_ = 0, behind_h_ = 0;
+  std::vector<int> behind_slot_, behind_cell_;
+  std::vector<std::array<int, 2>> block_behind_;
+  bool allocating_ = false;
+  // The nearest and the farthest inverse depth within the layers' parallax of each pixel (float32;
+  // empty where the depths' range moves no view by half a pixel): the surfaces a view's pixel may
+  // see besides the one its two lookups settled on.
+  cv::Mat nearest_, farthest_;
+  bool occluding_ = false;  // nearest_ and farthest_ are not empty
+  double most_move_ = 0;    // a bound on a view's move of a pixel per unit of inverse depth (px)
   std::vector<int64_t> times_us_;
   // Per pixel and view, a pixel's views side by side (viewSlot): the loss reads them pixel by
   // pixel.
