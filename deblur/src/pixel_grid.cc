@@ -88,8 +88,8 @@ inline double inverseDepthAt(const PinholeCamera& camera, const cv::Mat& inverse
 // camera at the pose (R, t): its point at the mid frame's inverse depth there, then once more at
 // the inverse depth where that lands (the view and the mid frame see nearly the same point);
 // rho_used: the second.
-Eigen::Vector2d reproject(const PinholeCamera& camera, const cv::Mat& inverse_depth, int x, int y,
-                          const Vector3& Rd, const Vector3& t, double* rho_used) {
+inline Eigen::Vector2d reproject(const PinholeCamera& camera, const cv::Mat& inverse_depth, int x,
+                                 int y, const Vector3& Rd, const Vector3& t, double* rho_used) {
   double rho = inverseDepthAt(camera, inverse_depth, x, y);
   const Eigen::Vector2d q = nerf::projectPoint(camera, Rd + rho * t);
   rho = inverseDepthAt(camera, inverse_depth, q.x(), q.y());
@@ -101,8 +101,8 @@ Eigen::Vector2d reproject(const PinholeCamera& camera, const cv::Mat& inverse_de
 // through, to first order (the pinhole's derivative along the epipolar line, dq / drho = f / z
 // (t_xy - X_xy / z t_z) at X = Rd + rho t); -1 behind the camera.
 // move: the derivative itself, where given.
-double moveRate(const PinholeCamera& camera, const Vector3& Rd, const Vector3& t, double rho,
-                Eigen::Vector2d* move = nullptr) {
+inline double moveRate(const PinholeCamera& camera, const Vector3& Rd, const Vector3& t, double rho,
+                       Eigen::Vector2d* move = nullptr) {
   const Vector3 X = Rd + rho * t;
   if (!(X.z() > 0)) return -1;
   const double iz = 1 / X.z();
@@ -130,8 +130,9 @@ constexpr int kBehindApron = 2;
 // edge: the mid frame's inverse depth at q moves it more than kDepthEdgePx. The view then looks
 // past an occluding edge at what the mid frame does not hold (a background that the near surface
 // hides at mid-exposure), or at a surface whose depth the two lookups did not settle.
-bool acrossDepthEdge(const PinholeCamera& camera, const cv::Mat& inverse_depth, const Vector3& Rd,
-                     const Vector3& t, const Eigen::Vector2d& q, double rho_used) {
+inline bool acrossDepthEdge(const PinholeCamera& camera, const cv::Mat& inverse_depth,
+                            const Vector3& Rd, const Vector3& t, const Eigen::Vector2d& q,
+                            double rho_used) {
   const double rho = inverseDepthAt(camera, inverse_depth, q.x(), q.y());
   if (rho == rho_used) return false;
   // The move to first order (moveRate), before the projection: under a quarter of kDepthEdgePx (a
@@ -487,6 +488,15 @@ PixelGridProblem::PixelGridProblem(const Observation& obs, const PinholeCamera& 
   }
 }
 
+// Inline: returned from a call, the stencil's three fields went back through the stack and stalled
+// the store into taps_ (8% of a frame with a layer behind).
+inline Taps PixelGridProblem::tapsOf(const Eigen::Vector2d& q, bool behind) const {
+  if (!behind) return tapsAt(cellCoordinate(q.x()), cellCoordinate(q.y()), canvas_w_, canvas_h_);
+  Taps t = tapsAt(q.x() + margin_, q.y() + margin_, behind_w_, behind_h_);
+  t.index = -t.index - 1;
+  return t;
+}
+
 void PixelGridProblem::buildTaps() {
   const int W = camera_.width, H = camera_.height;
   const size_t N = directions_.size();
@@ -613,15 +623,8 @@ PixelGridProblem::ViewSample PixelGridProblem::viewSample(int x, int y, const Ma
   const double there = inverseDepthAt(camera_, inverse_depth_, q.x(), q.y());
   if (there > far && (nerf::projectPoint(camera_, Rd + there * t) - q).norm() > kDepthEdgePx &&
       behindHolds(q))
-    return {q, far, true, false};
-  return s;
-}
-
-Taps PixelGridProblem::tapsOf(const Eigen::Vector2d& q, bool behind) const {
-  if (!behind) return tapsAt(cellCoordinate(q.x()), cellCoordinate(q.y()), canvas_w_, canvas_h_);
-  Taps t = tapsAt(q.x() + margin_, q.y() + margin_, behind_w_, behind_h_);
-  t.index = -t.index - 1;
-  return t;
+    s = {q, far, true, false};
+  return s;  // the one object every path returns (a copy of it stalled on its halves' stores)
 }
 
 double PixelGridProblem::intensityOf(double u, double* slope) const {
@@ -794,14 +797,19 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
           const double mid_grey = std::max(0.0, nerf::greyOf(&x[mid], C));
           const double mid_log = log.logOf(mid_grey);
           double sum[3] = {0, 0, 0};
+          // The views' samples first, then their levels (the loads of one pass, the logs of the
+          // other).
           for (int k = 0; k < V; ++k) {
-            const auto ki = static_cast<size_t>(k);
-            double* out = &colour[ki * C];
+            double* out = &colour[static_cast<size_t>(k) * C];
             const Taps& t = taps_[viewSlot(k, pixel)];
             if (behind(t))
               sampleBehind(x.data(), t, out);
             else
               sample(x.data(), canvas_w_, C, t, out);
+          }
+          for (int k = 0; k < V; ++k) {
+            const auto ki = static_cast<size_t>(k);
+            const double* out = &colour[ki * C];
             for (int c = 0; c < C; ++c) sum[c] += out[c];
             greys[ki] = std::max(0.0, nerf::greyOf(out, C));
             logs[ki] = log.logOf(greys[ki]);
@@ -970,18 +978,14 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
       }
     }
     if (gradient) {
-      for (size_t slot = 0; slot < B; ++slot) {
-        for (int c = 0; c < C; ++c) {
-          double sum = 0;
-          for (size_t block = 0; block < partial_behind.size(); ++block) {
-            const auto [from, to] = block_behind_[block];
-            if (static_cast<int>(slot) >= from && static_cast<int>(slot) < to)
-              sum += partial_behind[block][(slot - static_cast<size_t>(from)) * C + c];
-          }
-          const size_t i = first + slot * C + c;
-          (*gradient)[i] = sum * slope[i] + d_behind[slot * C + c];
-        }
+      std::vector<double> sum(B * C, 0.0);
+      for (size_t block = 0; block < partial_behind.size(); ++block) {
+        const auto from = static_cast<size_t>(block_behind_[block][0]) * C;
+        const std::vector<double>& part = partial_behind[block];
+        for (size_t j = 0; j < part.size(); ++j) sum[from + j] += part[j];
       }
+      for (size_t j = 0; j < B * C; ++j)
+        (*gradient)[first + j] = sum[j] * slope[first + j] + d_behind[j];
     }
   }
   const double blur = blur_sum * blur_scale, event = event_sum + smooth + smooth_behind;
