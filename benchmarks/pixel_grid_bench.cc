@@ -2,7 +2,8 @@
 // BeNeRF's default field, ten steps, and three steps of the motion's refinement, at 346x260 in
 // colour with `fast`'s 32 views, two cells per pixel, the events against the sensor's reference
 // level, the short windows and the robust penalty: a camera that turns 2 degrees and slides over
-// the exposure, 300k events.
+// the exposure, 300k events, over two depths (the layer behind where the near half uncovers the
+// far one; each benchmark's last argument 0: without, PixelGridOptions::occlusion off).
 //
 //   ./build/benchmarks/evkit_pixel_grid_bench
 
@@ -40,41 +41,45 @@ cv::Mat randomImage() {
   return image;
 }
 
-const PixelGridProblem& problem() {
-  static const PixelGridProblem p = [] {
-    RandomEventOptions e;
-    e.count = 300'000;
-    e.rate_hz = 3e6;  // 300k events in 100 ms
-    Observation obs;
-    obs.events = randomEvents(e);
-    const int64_t t0 = obs.events.t.front(), t1 = t0 + 100'000;
-    obs.blurry.image = randomImage();
-    obs.blurry.exposure_start_us = t0;
-    obs.blurry.exposure_end_us = t1;
-    const PinholeCamera camera = PinholeCamera::assumed(kWidth, kHeight).withSize(kWidth, kHeight);
-    obs.camera = camera;
-    std::vector<StampedPose> poses;
-    for (int k = 0; k <= 8; ++k) {
-      const double s = k / 8.0 - 0.5;
-      poses.push_back({t0 + (t1 - t0) * k / 8,
-                       SE3(expSO3(Vector3(0.02, -0.025, 0.005) * s), Vector3(0.03, 0.01, 0) * s)});
-    }
-    cv::Mat inverse_depth(kHeight, kWidth, CV_32F);
-    for (int y = 0; y < kHeight; ++y) {
-      for (int x = 0; x < kWidth; ++x)
-        inverse_depth.at<float>(y, x) = x < kWidth / 2 ? 0.3f : 0.8f;  // two depths
-    }
-    return PixelGridProblem(obs, camera, fitTrajectory(TrajectoryKind::kCubicSE3, 4, t0, t1, poses),
-                            inverse_depth, Contrast{0.2, 0.2}, fastOptions());
-  }();
-  return p;
+PixelGridProblem makeProblem(bool occlusion) {
+  RandomEventOptions e;
+  e.count = 300'000;
+  e.rate_hz = 3e6;  // 300k events in 100 ms
+  Observation obs;
+  obs.events = randomEvents(e);
+  const int64_t t0 = obs.events.t.front(), t1 = t0 + 100'000;
+  obs.blurry.image = randomImage();
+  obs.blurry.exposure_start_us = t0;
+  obs.blurry.exposure_end_us = t1;
+  const PinholeCamera camera = PinholeCamera::assumed(kWidth, kHeight).withSize(kWidth, kHeight);
+  obs.camera = camera;
+  std::vector<StampedPose> poses;
+  for (int k = 0; k <= 8; ++k) {
+    const double s = k / 8.0 - 0.5;
+    poses.push_back({t0 + (t1 - t0) * k / 8,
+                     SE3(expSO3(Vector3(0.02, -0.025, 0.005) * s), Vector3(0.03, 0.01, 0) * s)});
+  }
+  cv::Mat inverse_depth(kHeight, kWidth, CV_32F);
+  for (int y = 0; y < kHeight; ++y) {
+    for (int x = 0; x < kWidth; ++x)
+      inverse_depth.at<float>(y, x) = x < kWidth / 2 ? 0.3f : 0.8f;  // two depths
+  }
+  PixelGridOptions o = fastOptions();
+  o.occlusion = occlusion;
+  return PixelGridProblem(obs, camera, fitTrajectory(TrajectoryKind::kCubicSE3, 4, t0, t1, poses),
+                          inverse_depth, Contrast{0.2, 0.2}, o);
+}
+
+const PixelGridProblem& problem(bool occlusion) {
+  static const PixelGridProblem with = makeProblem(true), without = makeProblem(false);
+  return occlusion ? with : without;
 }
 
 // range(0): threads; range(1): 1 with the gradient, 0 the loss alone (the line search's trials
 // take both, the final terms the loss alone).
 void BM_PixelGridEvaluate(benchmark::State& state) {
   omp_set_num_threads(static_cast<int>(state.range(0)));
-  const PixelGridProblem& p = problem();
+  const PixelGridProblem& p = problem(state.range(2) != 0);
   const std::vector<double> x = p.start(randomImage());
   std::vector<double> gradient;
   for (auto _ : state)
@@ -85,7 +90,7 @@ void BM_PixelGridEvaluate(benchmark::State& state) {
 // Ten L-BFGS steps from the frame (BeNeRF's search for c takes ten for each c it tries).
 void BM_PixelGridSolve10(benchmark::State& state) {
   omp_set_num_threads(static_cast<int>(state.range(0)));
-  const PixelGridProblem& p = problem();
+  const PixelGridProblem& p = problem(state.range(1) != 0);
   const std::vector<double> start = p.start(randomImage());
   for (auto _ : state) {
     std::vector<double> x = start;
@@ -100,7 +105,7 @@ void BM_PixelGridRefineMotion3(benchmark::State& state) {
   const cv::Mat frame = randomImage();
   for (auto _ : state) {
     state.PauseTiming();
-    PixelGridProblem p = problem();
+    PixelGridProblem p = problem(state.range(1) != 0);
     const std::vector<double> x = p.start(frame);
     state.ResumeTiming();
     benchmark::DoNotOptimize(p.refineMotion(x, 3));
@@ -108,13 +113,22 @@ void BM_PixelGridRefineMotion3(benchmark::State& state) {
 }
 
 BENCHMARK(BM_PixelGridEvaluate)
-    ->Args({1, 1})
+    ->Args({1, 1, 1})
+    ->Args({2, 1, 1})
+    ->Args({2, 0, 1})
+    ->Args({2, 1, 0})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK(BM_PixelGridSolve10)
     ->Args({2, 1})
     ->Args({2, 0})
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
-BENCHMARK(BM_PixelGridSolve10)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
-BENCHMARK(BM_PixelGridRefineMotion3)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_PixelGridRefineMotion3)
+    ->Args({2, 1})
+    ->Args({2, 0})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 }  // namespace
 }  // namespace evkit
