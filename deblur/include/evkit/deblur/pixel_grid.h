@@ -1,5 +1,5 @@
 // BeNeRF's scene as a pixel grid at the mid-exposure camera, each cell at its registered inverse
-// depth (benerf_pixels.cc).
+// depth (pixel_grid.cc, pixel_grid_views.cc).
 #pragma once
 
 #include <Eigen/Core>
@@ -161,18 +161,23 @@ class PixelGridProblem {
                          double* rho_used = nullptr) const;
   // What pixel (x, y) of the camera at the pose (R, t) sees: where on the mid image (no margin),
   // through which inverse depth, whether from the layer behind, and whether seen across a depth
-  // edge (across_) (pixel_grid.cc).
+  // edge (across_) (pixel_grid_views.cc). `allocating`: the layer behind's cells are being chosen,
+  // and it is taken to hold every cell.
   struct ViewSample {
     Eigen::Vector2d q;
     double rho = 0;
     bool behind = false, across = false;
   };
-  ViewSample viewSample(int x, int y, const Matrix3& R, const Vector3& t) const;
+  ViewSample viewSample(int x, int y, const Matrix3& R, const Vector3& t,
+                        bool allocating = false) const;
+  // viewSample's first part: the two lookups on the inverse depth and whether across a depth edge,
+  // for the ray direction Rd = R d (pixel_grid_geometry.h).
+  ViewSample lookups(int x, int y, const Vector3& Rd, const Vector3& t) const;
   // The stencil of a mid-image position on the canvas's cells, in the layer behind for `behind`
   // (its index then -1 less the canvas's cell: behind()).
   CanvasTaps tapsOf(const Eigen::Vector2d& q, bool behind) const;
   static bool behind(const CanvasTaps& t) { return t.index < 0; }
-  // Whether the layer behind has cells for a stencil at q (or they are being chosen).
+  // Whether the layer behind has cells for a stencil at q.
   bool behindHolds(const Eigen::Vector2d& q) const;
   // A stencil's four cells among the unknowns (top-left, top-right, bottom-left, bottom-right).
   std::array<size_t, 4> corners(const CanvasTaps& t) const;
@@ -183,13 +188,16 @@ class PixelGridProblem {
   // margin, j / S - margin), bilinear; outside the image the nearest edge's value), channel c.
   double canvasValue(const cv::Mat& image, int i, int j, int c, int S) const;
   // Gives the layer behind cells where the views' samples need them (after buildTaps with
-  // allocating_), and the blocks' ranges of them.
+  // `allocating`), and the blocks' ranges of them.
   void allocateBehind();
   // The start of the layer behind: the mid image with each depth edge's far side carried into its
   // near side.
   cv::Mat behindStart(const cv::Mat& mid_image) const;
 
-  void buildTaps();      // every view's stencils from the motion, and block_rows_
+  // nearest_, farthest_ and most_move_ from the inverse depth and the views' poses.
+  void findSurfaces();
+  // Every view's stencils from the motion, and block_rows_ (viewSample's `allocating`).
+  void buildTaps(bool allocating = false);
   void findBlockRows();  // block_rows_ from the stencils
   // The frame's rows in kRowBlocks blocks whatever the thread count: each block's sums and its
   // share of the gradient (over the canvas rows its views reach, block_rows_) are its own, and the
@@ -251,12 +259,10 @@ class PixelGridProblem {
   // The layer behind, on a grid of one cell per pixel and the margin (behind_w_ x behind_h_: the
   // background a near surface uncovers is seen briefly, at its edge, and finer cells there only
   // slowed the solve): per grid cell its place among the unknowns' cells there (-1: none; empty:
-  // no layer), per such cell its grid cell, per row block the range of them its samples reach, and
-  // whether buildTaps takes samples from it without cells (while the cells are chosen).
+  // no layer), per such cell its grid cell, and per row block the range of them its samples reach.
   int behind_w_ = 0, behind_h_ = 0;
   std::vector<int> behind_slot_, behind_cell_;
   std::vector<std::array<int, 2>> block_behind_;
-  bool allocating_ = false;
   // The nearest and the farthest inverse depth within the layers' parallax of each pixel (float32;
   // empty where the depths' range moves no view by half a pixel): the surfaces a view's pixel may
   // see besides the one its two lookups settled on.
