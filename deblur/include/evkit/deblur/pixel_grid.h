@@ -274,12 +274,12 @@ class PixelGridProblem {
   // pixel.
   std::vector<CanvasTaps> taps_;
   // Per view slot, 1 where the view's sample is seen across a depth edge (acrossDepthEdge in
-  // pixel_grid.cc): it looks past an occluding edge at what the mid-exposure image does not hold,
-  // and the events there record that (a background coming into view), which no cell can render.
-  // Such a sample stays in the blur term (the blurry frame averages whatever the pixel saw) but
-  // its comparisons with the events are left out of the event term, the motion's normal equations
-  // and the held-out score: fitted, they pull the near surface's cells towards the background's
-  // changes (BENCHMARKS.md, "Views across a depth edge").
+  // pixel_grid_geometry.h): it looks past an occluding edge at what the mid-exposure image does not
+  // hold, and the events there record that (a background coming into view), which no cell can
+  // render. Such a sample stays in the blur term (the blurry frame averages whatever the pixel saw)
+  // but its comparisons with the events are left out of the event term, the motion's normal
+  // equations and the held-out score: fitted, they pull the near surface's cells towards the
+  // background's changes (BENCHMARKS.md, "Views across a depth edge").
   std::vector<uint8_t> across_;
   std::vector<uint8_t> across_pixels_;          // per pixel, 1 where any of its views' samples is
   std::vector<std::array<int, 2>> block_rows_;  // per row block, the canvas rows [first, last)
