@@ -95,11 +95,12 @@ double translationRidge(const PinholeCamera& camera, const std::vector<Track>& t
 
 // Gauss-Newton on one time's motion (rotation, and translation when `translate`), each track's
 // inverse depth fixed, with Huber weights; the translation gets a small ridge so that where no
-// parallax tells them apart, rotation explains the motion.
+// parallax tells them apart, rotation explains the motion. The rotation is stepped on the right,
+// R exp(delta): the point seen, X = R^T (b - rho p), moves by [X]x delta and by -rho R^T dp, and
+// the projection's derivative takes it to the image (nerf::projectPoint).
 void fitTime(const PinholeCamera& camera, const std::vector<Track>& tracks,
              const std::vector<double>& rho, int time, bool translate, double ridge, Vector3& theta,
              Vector3& p) {
-  const int n = translate ? 6 : 3;
   // Fixed-size terms (no allocation per track); without translation the last three columns of J
   // stay zero and the rotation's 3 x 3 block is solved.
   using Matrix26 = Eigen::Matrix<double, 2, 6>;
@@ -108,27 +109,18 @@ void fitTime(const PinholeCamera& camera, const std::vector<Track>& tracks,
   for (int iteration = 0; iteration < 8; ++iteration) {
     Matrix66 H = Matrix66::Zero();
     Vector6d g = Vector6d::Zero();
-    // The rotation and its three perturbed copies for the Jacobian's columns (forward differences).
-    std::array<Matrix3, 4> Rt;
-    Rt[0] = transposedRotation(theta);
-    for (int k = 0; k < 3; ++k) {
-      Vector3 dt = theta;
-      dt[k] += 1e-6;
-      Rt[static_cast<size_t>(k) + 1] = transposedRotation(dt);
-    }
+    const Matrix3 Rt = transposedRotation(theta);
     Matrix26 J = Matrix26::Zero();
+    Eigen::Matrix<double, 2, 3> projection;
     for (size_t i = 0; i < tracks.size(); ++i) {
       const Track& tr = tracks[i];
       const Eigen::Vector2d& q = tr.seen[static_cast<size_t>(time)];
       if (!std::isfinite(q.x())) continue;
       const double r = translate ? rho[i] : 0.0;
-      const Eigen::Vector2d r0 = predict(camera, tr.bearing, r, Rt[0], p) - q;
-      for (int k = 0; k < n; ++k) {
-        const Matrix3& R = k < 3 ? Rt[static_cast<size_t>(k) + 1] : Rt[0];
-        Vector3 dp = p;
-        if (k >= 3) dp[k - 3] += 1e-6;
-        J.col(k) = (predict(camera, tr.bearing, r, R, dp) - r0 - q) / 1e-6;
-      }
+      const Vector3 X = Rt * (tr.bearing - r * p);
+      const Eigen::Vector2d r0 = nerf::projectPoint(camera, X, projection) - q;
+      J.leftCols<3>() = projection * hat(X);
+      if (translate) J.rightCols<3>() = -r * projection * Rt;
       const double w = huberWeight(r0.norm());
       H.noalias() += w * J.transpose() * J;
       g.noalias() += w * J.transpose() * r0;
@@ -142,7 +134,7 @@ void fitTime(const PinholeCamera& camera, const std::vector<Track>& tracks,
       step.head<3>() = H.topLeftCorner<3, 3>().ldlt().solve(-g.head<3>());
     }
     if (!step.allFinite()) return;
-    theta += step.head<3>();
+    theta = logSO3(Quaternion(expSO3(theta) * expSO3(step.head<3>())));
     if (translate) p += step.tail<3>();
     if (step.norm() < 1e-10) break;
   }

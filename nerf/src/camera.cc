@@ -14,6 +14,32 @@ Eigen::Vector2d projectPoint(const PinholeCamera& camera, const Vector3& p) {
   return {q[0], q[1]};
 }
 
+Eigen::Vector2d projectPoint(const PinholeCamera& camera, const Vector3& p,
+                             Eigen::Matrix<double, 2, 3>& jacobian) {
+  const double x = p.x() / p.z(), y = p.y() / p.z(), iz = 1 / p.z();  // as projectPoint
+  // The normalised coordinates' derivative by the point: (1 / z) [1 0 -x; 0 1 -y].
+  Eigen::Matrix<double, 2, 3> dn;
+  dn << iz, 0, -x * iz, 0, iz, -y * iz;
+  // The distortion's (base/camera.h, distortNormalised): radial 1 + k1 r2 + k2 r2^2 + k3 r2^3
+  // and the tangential terms, differentiated in x and y.
+  Eigen::Matrix2d dd = Eigen::Matrix2d::Identity();
+  const std::vector<double>& k = camera.distortion;
+  if (!k.empty()) {
+    const double k1 = k.size() > 0 ? k[0] : 0, k2 = k.size() > 1 ? k[1] : 0,
+                 p1 = k.size() > 2 ? k[2] : 0, p2 = k.size() > 3 ? k[3] : 0,
+                 k3 = k.size() > 4 ? k[4] : 0;
+    const double r2 = x * x + y * y;
+    const double radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3));
+    const double slope = k1 + r2 * (2 * k2 + 3 * k3 * r2);  // d radial / d r2
+    const double cross = 2 * x * y * slope + 2 * p1 * x + 2 * p2 * y;
+    dd << radial + 2 * x * x * slope + 2 * p1 * y + 6 * p2 * x, cross, cross,
+        radial + 2 * y * y * slope + 6 * p1 * y + 2 * p2 * x;
+  }
+  jacobian = Eigen::DiagonalMatrix<double, 2>(camera.fx, camera.fy) * dd * dn;
+  const std::array<double, 2> q = pixelOfNormalised(camera, x, y);
+  return {q[0], q[1]};
+}
+
 Ray worldRay(const PinholeCamera& camera, const SE3& T, double u, double v) {
   return Ray{T.translation(), T.rotation() * pixelDirection(camera, u, v)};
 }

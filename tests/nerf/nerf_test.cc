@@ -405,6 +405,28 @@ TEST(Camera, NdcPointPoseJacobianAgainstCentralDifferences) {
   }
 }
 
+// The projection's derivative by the camera-frame point, with and without a lens's distortion
+// (radial to k3 and tangential), near the centre and out towards a corner.
+TEST(Camera, ProjectionJacobianAgainstCentralDifferences) {
+  PinholeCamera cam = PinholeCamera{60.0, 58.0, 31.5, 23.5, {}}.withSize(64, 48);
+  for (const std::vector<double>& dist :
+       {std::vector<double>{}, std::vector<double>{-0.3, 0.08, 0.002, -0.003, 0.01}}) {
+    cam.distortion = dist;
+    for (const Vector3& point : {Vector3(0.01, -0.02, 1.0), Vector3(0.5, 0.35, 1.3),
+                                 Vector3(-0.9, 0.6, 2.0), Vector3(0.2, -0.7, 0.8)}) {
+      Eigen::Matrix<double, 2, 3> jacobian;
+      const Eigen::Vector2d q = projectPoint(cam, point, jacobian);
+      const Eigen::Vector2d plain = projectPoint(cam, point);
+      EXPECT_EQ(q, plain);
+      const auto f = [&](const Eigen::VectorXd& p) -> Eigen::VectorXd {
+        return projectPoint(cam, Vector3(p));
+      };
+      test::expectJacobianNear("projection, k1 " + std::to_string(dist.empty() ? 0 : dist[0]),
+                               jacobian, f, Eigen::VectorXd(point), kEps, 1e-6);
+    }
+  }
+}
+
 TEST(RayBatch, PoseGradientsAgainstCentralDifferences) {
   // A loss L = sum_r w_r . colour_r over rays from two poses, with depth scaled as BeNeRF's field
   // sees it: dL/d pose (right perturbation) from backward() against central differences.

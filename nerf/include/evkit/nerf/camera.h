@@ -24,6 +24,9 @@ using PinholeCamera = evkit::PinholeCamera;  // base/camera.h: the one camera ty
 Vector3 pixelDirection(const PinholeCamera& camera, double u, double v);
 // Pixel coordinates of a camera-frame point (distorted).
 Eigen::Vector2d projectPoint(const PinholeCamera& camera, const Vector3& p_cam);
+// The same and its derivative by the point (2 x 3), the distortion's polynomial included.
+Eigen::Vector2d projectPoint(const PinholeCamera& camera, const Vector3& p_cam,
+                             Eigen::Matrix<double, 2, 3>& jacobian);
 
 struct Ray {
   Vector3 origin, direction;  // world frame; direction = R d_cam (not normalised)
