@@ -202,7 +202,10 @@ PixelGridProblem::PixelGridProblem(const Observation& obs, const PinholeCamera& 
   // The layer behind's cells where the views' samples at this motion need them: the stencils are
   // taken first as if it held every cell.
   buildTaps(occluding_);
-  if (occluding_) allocateBehind();
+  if (occluding_) {
+    allocateBehind();
+    findBlockRows();
+  }
 
   // The blurry frame, and the events accumulated from mid-exposure to each view's time.
   obs.blurry.image.convertTo(blurry_, CV_MAKETYPE(CV_32F, channels_));
@@ -538,14 +541,15 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
       }
     }
     if (gradient) {
-      std::vector<double> sum(B * C, 0.0);
+      // The blocks' sums added in order in the gradient's own slots, then through the slope.
+      double* g = gradient->data() + first;
+      std::fill(g, g + B * C, 0.0);
       for (size_t block = 0; block < partial_behind.size(); ++block) {
         const auto from = static_cast<size_t>(block_behind_[block][0]) * C;
         const std::vector<double>& part = partial_behind[block];
-        for (size_t j = 0; j < part.size(); ++j) sum[from + j] += part[j];
+        for (size_t j = 0; j < part.size(); ++j) g[from + j] += part[j];
       }
-      for (size_t j = 0; j < B * C; ++j)
-        (*gradient)[first + j] = sum[j] * slope[first + j] + d_behind[j];
+      for (size_t j = 0; j < B * C; ++j) g[j] = g[j] * slope[first + j] + d_behind[j];
     }
   }
   const double blur = blur_sum * blur_scale, event = event_sum + smooth + smooth_behind;

@@ -138,7 +138,6 @@ void PixelGridProblem::allocateBehind() {
       behind_cell_.push_back(cell);
     }
   }
-  findBlockRows();
 }
 
 // The surfaces a view's pixel may see besides the one its lookups settle on: the nearest and
@@ -227,7 +226,7 @@ void PixelGridProblem::buildTaps(bool allocating) {
   for (size_t pixel = 0; pixel < N; ++pixel) {
     for (int k = 0; k < views_; ++k) across_pixels_[pixel] |= across_[viewSlot(k, pixel)];
   }
-  findBlockRows();
+  if (!allocating) findBlockRows();  // else once the layer's cells are chosen
 }
 
 void PixelGridProblem::findBlockRows() {

@@ -188,7 +188,7 @@ class PixelGridProblem {
   // margin, j / S - margin), bilinear; outside the image the nearest edge's value), channel c.
   double canvasValue(const cv::Mat& image, int i, int j, int c, int S) const;
   // Gives the layer behind cells where the views' samples need them (after buildTaps with
-  // `allocating`), and the blocks' ranges of them.
+  // `allocating`; findBlockRows then gives the blocks' ranges of them).
   void allocateBehind();
   // The start of the layer behind: the mid image with each depth edge's far side carried into its
   // near side.
@@ -196,7 +196,7 @@ class PixelGridProblem {
 
   // nearest_, farthest_ and most_move_ from the inverse depth and the views' poses.
   void findSurfaces();
-  // Every view's stencils from the motion, and block_rows_ (viewSample's `allocating`).
+  // Every view's stencils from the motion, and block_rows_ (not while `allocating`, viewSample's).
   void buildTaps(bool allocating = false);
   void findBlockRows();  // block_rows_ from the stencils
   // The frame's rows in kRowBlocks blocks whatever the thread count: each block's sums and its
