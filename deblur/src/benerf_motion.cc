@@ -9,6 +9,8 @@
 #include <limits>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
+#include <optional>
+#include <span>
 #include <stdexcept>
 
 #include "benerf_common.h"
@@ -610,6 +612,8 @@ struct TrackedPoints {
   std::vector<cv::Mat> flows;
   int tiles_x = 1, tiles_y = 1;
   int without_events = 0;  // textured points left out: too few events around them
+  cv::Mat mid8;            // the mid frame as the flow saw it
+  double repeated = -1;    // repeatedTextureShare of the tracks, once asked (-1 before)
 };
 
 TrackedPoints trackLatentFrames(const Observation& obs, const std::optional<Contrast>& contrast,
@@ -630,6 +634,7 @@ TrackedPoints trackLatentFrames(const Observation& obs, const std::optional<Cont
   const cv::Mat mid_log = benerf_detail::logGrey(latent.frames[mid].image, log);
   const FlowImages to8{mid_log};
   const cv::Mat mid8 = to8.convert(mid_log);
+  out.mid8 = mid8;
   cv::Mat texture;
   cv::cornerMinEigenVal(mid8, texture, 5);
   std::vector<float> tex(texture.begin<float>(), texture.end<float>());
@@ -773,9 +778,22 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
       m.pixel_depth = true;
     }
   }
-  // A rigid camera that does not explain the registration to within a pixel (motion beyond the
-  // models, a registration that failed): no poses, and the caller starts elsewhere.
-  if (chosen.residual_px > 1.0) {
+  // A rigid camera that does not explain the registration (motion beyond the models, a
+  // registration that failed): no poses, and the caller starts elsewhere. Within a pixel it does;
+  // up to kMostMisfitPx it does unless the texture repeats within the flow's reach, where a
+  // flow locks onto a repeat with a bias that the per-pixel depth absorbs into a misfit of about
+  // a pixel (BENCHMARKS.md, "What the registration's misfit measures").
+  bool explained = chosen.residual_px <= 1.0;
+  if (!explained && chosen.residual_px <= kMostMisfitPx) {
+    if (points.repeated < 0) {
+      std::vector<Eigen::Vector2d> at;
+      for (size_t i = 0; i < tracks.size(); i += kRepeatSampleEvery) at.push_back(tracks[i].pixel);
+      points.repeated = repeatedTextureShare(points.mid8, at);
+    }
+    m.repeated_share = points.repeated;
+    explained = points.repeated < kMostRepeatedShare;
+  }
+  if (!explained) {
     m.inverse_depth = cv::Mat();
     return m;
   }
@@ -794,6 +812,58 @@ ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamer
                                       int intervals) {
   TrackedPoints points = trackLatentFrames(obs, contrast, log, intervals);
   return fitMotion(camera, points, choose_depth_offset);
+}
+
+double repeatedTextureShare(const cv::Mat& image8, std::span<const Eigen::Vector2d> points) {
+  if (image8.type() != CV_8UC1)
+    throw std::invalid_argument("repeatedTextureShare: an 8-bit one-channel image");
+  cv::Mat half;
+  cv::pyrDown(image8, half);
+  const cv::Rect inside(0, 0, half.cols, half.rows);
+  constexpr int kHalfPatch = kRepeatPatchPx / 4, kReach = kRepeatReachPx / 2;
+  const auto repeats = [&](const Eigen::Vector2d& point) {
+    const int hx = static_cast<int>(point.x()) / 2, hy = static_cast<int>(point.y()) / 2;
+    const cv::Rect patch(hx - kHalfPatch, hy - kHalfPatch, 2 * kHalfPatch + 1, 2 * kHalfPatch + 1);
+    if ((patch & inside) != patch) return std::optional<bool>{};
+    const cv::Rect window = cv::Rect(patch.x - kReach, patch.y - kReach, patch.width + 2 * kReach,
+                                     patch.height + 2 * kReach) &
+                            inside;
+    cv::Mat r;
+    cv::matchTemplate(half(window), half(patch), r, cv::TM_CCOEFF_NORMED);
+    // The central peak: the cells joined to the patch's own place above half of its correlation.
+    cv::Mat peak = cv::Mat::zeros(r.size(), CV_8U);
+    std::vector<cv::Point> stack{{patch.x - window.x, patch.y - window.y}};
+    peak.at<uint8_t>(stack.back()) = 1;
+    while (!stack.empty()) {
+      const cv::Point at = stack.back();
+      stack.pop_back();
+      for (int dv = -1; dv <= 1; ++dv) {
+        for (int du = -1; du <= 1; ++du) {
+          const cv::Point next(at.x + du, at.y + dv);
+          if (!next.inside(cv::Rect(0, 0, r.cols, r.rows)) || peak.at<uint8_t>(next) ||
+              !(r.at<float>(next) > 0.5f))
+            continue;
+          peak.at<uint8_t>(next) = 1;
+          stack.push_back(next);
+        }
+      }
+    }
+    for (int v = 0; v < r.rows; ++v) {
+      for (int u = 0; u < r.cols; ++u) {
+        if (!peak.at<uint8_t>(v, u) && r.at<float>(v, u) > kRepeatCorrelation)
+          return std::optional<bool>{true};
+      }
+    }
+    return std::optional<bool>{false};
+  };
+  int counted = 0, repeated = 0;
+  for (const Eigen::Vector2d& point : points) {
+    const std::optional<bool> r = repeats(point);
+    if (!r) continue;
+    ++counted;
+    repeated += *r;
+  }
+  return counted == 0 ? 0.0 : static_cast<double>(repeated) / counted;
 }
 
 double registrationMisfit(const ExposureMotion& motion) {
