@@ -699,7 +699,8 @@ TrackedPoints trackLatentFrames(const Observation& obs, const std::optional<Cont
 }
 
 // The rigid camera's three models fitted to the tracked points as `camera` sees them.
-ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, bool choose_offset) {
+ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, bool choose_offset,
+                         MisfitBar bar) {
   ExposureMotion m;
   std::vector<Track>& tracks = points.tracks;
   const int times = static_cast<int>(points.times.size()), mid = times / 2;
@@ -780,11 +781,11 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
   }
   // A rigid camera that does not explain the registration (motion beyond the models, a
   // registration that failed): no poses, and the caller starts elsewhere. Within a pixel it does;
-  // up to kMostMisfitPx it does unless the texture repeats within the flow's reach, where a
-  // flow locks onto a repeat with a bias that the per-pixel depth absorbs into a misfit of about
-  // a pixel (BENCHMARKS.md, "What the registration's misfit measures").
+  // with kUnlessRepeated up to kMostMisfitPx too unless the texture repeats within the flow's
+  // reach, where a flow locks onto a repeat with a bias that the per-pixel depth absorbs into a
+  // misfit of about a pixel (BENCHMARKS.md, "What the registration's misfit measures").
   bool explained = chosen.residual_px <= 1.0;
-  if (!explained && chosen.residual_px <= kMostMisfitPx) {
+  if (!explained && bar == MisfitBar::kUnlessRepeated && chosen.residual_px <= kMostMisfitPx) {
     if (points.repeated < 0) {
       std::vector<Eigen::Vector2d> at;
       for (size_t i = 0; i < tracks.size(); i += kRepeatSampleEvery) at.push_back(tracks[i].pixel);
@@ -809,9 +810,9 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
 ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamera& camera,
                                       const std::optional<Contrast>& contrast,
                                       const LogMapping& log, bool choose_depth_offset,
-                                      int intervals) {
+                                      int intervals, MisfitBar bar) {
   TrackedPoints points = trackLatentFrames(obs, contrast, log, intervals);
-  return fitMotion(camera, points, choose_depth_offset);
+  return fitMotion(camera, points, choose_depth_offset, bar);
 }
 
 double repeatedTextureShare(const cv::Mat& image8, std::span<const Eigen::Vector2d> points) {
@@ -900,11 +901,11 @@ ExposureMotion registerAwayFromSearch(
 
 CalibratedMotion calibrateFromLatentFrames(const Observation& obs, const PinholeCamera& assumed,
                                            const std::optional<Contrast>& contrast,
-                                           const LogMapping& log, int intervals) {
+                                           const LogMapping& log, int intervals, MisfitBar bar) {
   TrackedPoints points = trackLatentFrames(obs, contrast, log, intervals);
   CalibratedMotion best;
   best.camera = assumed;
-  best.motion = fitMotion(assumed, points, true);
+  best.motion = fitMotion(assumed, points, true, bar);
   best.residual_assumed_px = best.motion.residual_depth_px;
   best.cameras_tried = 1;
   if (best.motion.tracks < kMinTracks) return best;
@@ -920,7 +921,7 @@ CalibratedMotion calibrateFromLatentFrames(const Observation& obs, const Pinhole
   double residual = best.motion.residual_depth_px;
   for (const double k1 : kLensK1) {
     if (k1 == 0) continue;
-    ExposureMotion m = fitMotion(camera(k1), points, true);
+    ExposureMotion m = fitMotion(camera(k1), points, true, bar);
     ++best.cameras_tried;
     if (!(m.residual_depth_px < (1 - kLensGain) * residual)) continue;
     residual = m.residual_depth_px;

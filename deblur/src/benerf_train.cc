@@ -124,6 +124,11 @@ struct Start {
   BlurMeasurement measured;       // EDI's pass: the blur length and, without thresholds, its search
 };
 
+// The registration's bar on its misfit: beyond a pixel only with the thresholds known (MisfitBar).
+MisfitBar misfitBar(bool contrast_given) {
+  return contrast_given ? MisfitBar::kUnlessRepeated : MisfitBar::kOnePixel;
+}
+
 // The registration's figures in the summary.
 void reportMotion(const ExposureMotion& motion, DeblurResult& result) {
   result.parameters["representation_depth"] = motion.depth ? 1 : 0;
@@ -160,8 +165,10 @@ Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& 
   if (o.init == BenerfOptions::Init::kFrames || o.field == BenerfOptions::FieldKind::kPixels) {
     const auto registration_start = Clock::now();
     PinholeCamera camera = obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows);
+    const MisfitBar bar = misfitBar(s.contrast_given);
     if (obs.camera_assumed && o.calibrate && o.field == BenerfOptions::FieldKind::kPixels) {
-      CalibratedMotion c = calibrateFromLatentFrames(obs, camera, o.contrast, o.log);
+      CalibratedMotion c =
+          calibrateFromLatentFrames(obs, camera, o.contrast, o.log, kScoredIntervals, bar);
       camera = s.camera = c.camera;
       s.camera_estimated = c.estimated;
       s.motion = std::move(c.motion);
@@ -169,7 +176,8 @@ Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& 
       result.parameters["camera_residual_assumed_px"] = c.residual_assumed_px;
       result.parameters["cameras_tried"] = c.cameras_tried;
     } else {
-      s.motion = motionFromLatentFrames(obs, camera, o.contrast, o.log);
+      s.motion =
+          motionFromLatentFrames(obs, camera, o.contrast, o.log, true, kScoredIntervals, bar);
     }
     // The pixel grid without thresholds: where the registration at EDI's searched c fails, at c's
     // away from it, the first that registers; runPixelGrid refines the c from there.
@@ -651,8 +659,8 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   result.parameters["registered_times"] = static_cast<double>(registered.poses.size());
   if (o.knots <= 0 && static_cast<int>(motion.knots().size()) >= kTurningKnots) {
     const auto dense_start = Clock::now();
-    ExposureMotion dense =
-        motionFromLatentFrames(given, camera, contrast, o.log, true, kTrajectoryIntervals);
+    ExposureMotion dense = motionFromLatentFrames(
+        given, camera, contrast, o.log, true, kTrajectoryIntervals, misfitBar(s.contrast_given));
     if (!dense.poses.empty()) {
       registered = std::move(dense);
       reportMotion(registered, result);

@@ -293,11 +293,17 @@ Vector3 rotationFromEvents(const Observation& obs, const nerf::PinholeCamera& ca
 // motion error on the rocket, per pixel 0.8-1.2). That refinement is kept where it lowers the
 // tracks' residual (pixel_depth). Where the chosen model's RMS residual is above 1 px (the rigid
 // camera does not explain the registration), or fewer than 50 points are tracked, there are no
-// poses; between 1 px and kMostMisfitPx there are, unless the tracked texture repeats
-// (repeatedTextureShare at least kMostRepeatedShare). Measured: on photographs the tracks follow
-// 92-94% of the true path at misfits of 1.04-1.27 px, the residual spread over every track; on a
-// grating and a checkerboard 63-81% at 1.07-1.09 px, the flows locked onto a repeat and the
-// per-pixel depth absorbing the bias (BENCHMARKS.md, "What the registration's misfit measures").
+// poses; with MisfitBar::kUnlessRepeated, between 1 px and kMostMisfitPx there are unless the
+// tracked texture repeats (repeatedTextureShare at least kMostRepeatedShare). Measured with the
+// thresholds known: on photographs the tracks follow 92-94% of the true path at misfits of
+// 1.04-1.27 px, the residual spread over every track; on a grating and a checkerboard 63-81% at
+// 1.07-1.09 px, the flows locked onto a repeat and the per-pixel depth absorbing the bias
+// (BENCHMARKS.md, "What the registration's misfit measures"). Without the thresholds a misfit
+// above 1 px is also the sign of a wrong c, which the search walks away from
+// (registerAwayFromSearch): kOnePixel there (at 1.5 px the walk stopped at EDI's c of 0.28 for the
+// truth's 0.2 on nat_hubble_rocket_blur60_noisy, and the c found from that motion collapsed it:
+// 42.02 -> 27.73 dB).
+enum class MisfitBar { kOnePixel, kUnlessRepeated };
 inline constexpr double kMostMisfitPx = 1.5, kMostRepeatedShare = 0.4;
 struct ExposureMotion {
   std::vector<StampedPose> poses;  // T_mid_t: the camera at each time in the mid-exposure frame
@@ -343,7 +349,8 @@ inline constexpr int kScoredIntervals = 8, kTrajectoryIntervals = 16;
 ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamera& camera,
                                       const std::optional<Contrast>& contrast,
                                       const LogMapping& log = {}, bool choose_depth_offset = true,
-                                      int intervals = kScoredIntervals);
+                                      int intervals = kScoredIntervals,
+                                      MisfitBar bar = MisfitBar::kOnePixel);
 
 // The registration's misfit: its chosen model's RMS residual (px); infinite where too few points
 // were tracked to fit one.
@@ -382,7 +389,8 @@ struct CalibratedMotion {
 CalibratedMotion calibrateFromLatentFrames(const Observation& obs, const PinholeCamera& assumed,
                                            const std::optional<Contrast>& contrast,
                                            const LogMapping& log = {},
-                                           int intervals = kScoredIntervals);
+                                           int intervals = kScoredIntervals,
+                                           MisfitBar bar = MisfitBar::kOnePixel);
 
 // One optimisation problem: the observation's data, the field and the trajectory. Templated on the
 // scalar so that the whole pipeline can be checked against finite differences in double.
