@@ -805,6 +805,46 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
   return m;
 }
 
+// Whether the neighbourhood of `point` (a pixel of the full image) repeats within the flow's reach
+// in `half`, the image at half size (repeatedTextureShare); none where its patch leaves the image.
+std::optional<bool> repeatsWithinReach(const cv::Mat& half, const Eigen::Vector2d& point) {
+  constexpr int kHalfPatch = kRepeatPatchPx / 4, kReach = kRepeatReachPx / 2;
+  if (!point.allFinite() || point.cwiseAbs().maxCoeff() > 1e6) return std::nullopt;
+  const cv::Rect inside(0, 0, half.cols, half.rows);
+  const int hx = static_cast<int>(point.x()) / 2, hy = static_cast<int>(point.y()) / 2;
+  const cv::Rect patch(hx - kHalfPatch, hy - kHalfPatch, 2 * kHalfPatch + 1, 2 * kHalfPatch + 1);
+  if ((patch & inside) != patch) return std::nullopt;
+  const cv::Rect window = cv::Rect(patch.x - kReach, patch.y - kReach, patch.width + 2 * kReach,
+                                   patch.height + 2 * kReach) &
+                          inside;
+  cv::Mat r;
+  cv::matchTemplate(half(window), half(patch), r, cv::TM_CCOEFF_NORMED);
+  // The central peak: the places joined to the patch's own (a correlation of 1) above 0.5.
+  cv::Mat peak = cv::Mat::zeros(r.size(), CV_8U);
+  std::vector<cv::Point> stack{{patch.x - window.x, patch.y - window.y}};
+  peak.at<uint8_t>(stack.back()) = 1;
+  while (!stack.empty()) {
+    const cv::Point at = stack.back();
+    stack.pop_back();
+    for (int dv = -1; dv <= 1; ++dv) {
+      for (int du = -1; du <= 1; ++du) {
+        const cv::Point next(at.x + du, at.y + dv);
+        if (!next.inside(cv::Rect(0, 0, r.cols, r.rows)) || peak.at<uint8_t>(next) ||
+            !(r.at<float>(next) > 0.5f))
+          continue;
+        peak.at<uint8_t>(next) = 1;
+        stack.push_back(next);
+      }
+    }
+  }
+  for (int v = 0; v < r.rows; ++v) {
+    for (int u = 0; u < r.cols; ++u) {
+      if (!peak.at<uint8_t>(v, u) && r.at<float>(v, u) > kRepeatCorrelation) return true;
+    }
+  }
+  return false;
+}
+
 }  // namespace
 
 ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamera& camera,
@@ -816,50 +856,13 @@ ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamer
 }
 
 double repeatedTextureShare(const cv::Mat& image8, std::span<const Eigen::Vector2d> points) {
-  if (image8.type() != CV_8UC1)
+  if (image8.empty() || image8.type() != CV_8UC1)
     throw std::invalid_argument("repeatedTextureShare: an 8-bit one-channel image");
   cv::Mat half;
   cv::pyrDown(image8, half);
-  const cv::Rect inside(0, 0, half.cols, half.rows);
-  constexpr int kHalfPatch = kRepeatPatchPx / 4, kReach = kRepeatReachPx / 2;
-  const auto repeats = [&](const Eigen::Vector2d& point) {
-    const int hx = static_cast<int>(point.x()) / 2, hy = static_cast<int>(point.y()) / 2;
-    const cv::Rect patch(hx - kHalfPatch, hy - kHalfPatch, 2 * kHalfPatch + 1, 2 * kHalfPatch + 1);
-    if ((patch & inside) != patch) return std::optional<bool>{};
-    const cv::Rect window = cv::Rect(patch.x - kReach, patch.y - kReach, patch.width + 2 * kReach,
-                                     patch.height + 2 * kReach) &
-                            inside;
-    cv::Mat r;
-    cv::matchTemplate(half(window), half(patch), r, cv::TM_CCOEFF_NORMED);
-    // The central peak: the cells joined to the patch's own place above half of its correlation.
-    cv::Mat peak = cv::Mat::zeros(r.size(), CV_8U);
-    std::vector<cv::Point> stack{{patch.x - window.x, patch.y - window.y}};
-    peak.at<uint8_t>(stack.back()) = 1;
-    while (!stack.empty()) {
-      const cv::Point at = stack.back();
-      stack.pop_back();
-      for (int dv = -1; dv <= 1; ++dv) {
-        for (int du = -1; du <= 1; ++du) {
-          const cv::Point next(at.x + du, at.y + dv);
-          if (!next.inside(cv::Rect(0, 0, r.cols, r.rows)) || peak.at<uint8_t>(next) ||
-              !(r.at<float>(next) > 0.5f))
-            continue;
-          peak.at<uint8_t>(next) = 1;
-          stack.push_back(next);
-        }
-      }
-    }
-    for (int v = 0; v < r.rows; ++v) {
-      for (int u = 0; u < r.cols; ++u) {
-        if (!peak.at<uint8_t>(v, u) && r.at<float>(v, u) > kRepeatCorrelation)
-          return std::optional<bool>{true};
-      }
-    }
-    return std::optional<bool>{false};
-  };
   int counted = 0, repeated = 0;
   for (const Eigen::Vector2d& point : points) {
-    const std::optional<bool> r = repeats(point);
+    const std::optional<bool> r = repeatsWithinReach(half, point);
     if (!r) continue;
     ++counted;
     repeated += *r;

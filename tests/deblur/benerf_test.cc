@@ -475,7 +475,7 @@ double medianWhere(const cv::Mat& image, const cv::Mat& mask) {
 // checkerboard at 120 px (its repeats beyond the 32 px reach) and a straight edge (its own line
 // joined to the central peak) nearly nowhere, and photographs at the suite's size under
 // kMostRepeatedShare (gravel, grass, the cameraman, coffee; measured 0-0.05, the suite's brick
-// walls 0.31-0.33). Only an 8-bit grey image is read.
+// walls 0.31-0.33). Only an 8-bit grey image is read; points off it are not counted.
 TEST(Benerf, RepeatedTextureIsTheFlowsRepeatWithinItsReach) {
   const int W = 346, H = 260;
   std::vector<Eigen::Vector2d> points;
@@ -511,6 +511,10 @@ TEST(Benerf, RepeatedTextureIsTheFlowsRepeatWithinItsReach) {
     EXPECT_LT(repeatedTextureShare(image, points), kMostRepeatedShare) << name;
   }
   EXPECT_THROW(repeatedTextureShare(cv::Mat(H, W, CV_32F, 0.5f), points), std::invalid_argument);
+  EXPECT_THROW(repeatedTextureShare(cv::Mat(), points), std::invalid_argument);
+  // Points off the image or not finite are not counted.
+  const std::vector<Eigen::Vector2d> outside{{-40, 10}, {std::nan(""), 5}, {1e300, 1e300}};
+  EXPECT_EQ(repeatedTextureShare(checker(12), outside), 0.0);
   if (photos == 0) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
 }
 
