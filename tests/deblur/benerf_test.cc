@@ -474,7 +474,7 @@ double medianWhere(const cv::Mat& image, const cv::Mat& mask) {
 // checkerboard of 24 px period and a grating of 16 px are flagged nearly everywhere, the same
 // checkerboard at 120 px (its repeats beyond the 32 px reach) and a straight edge (its own line
 // joined to the central peak) nearly nowhere, and photographs at the suite's size under
-// kMostRepeatedShare (gravel, grass, the cameraman, coffee; measured 0-0.05, the suite's brick
+// kMostRepeatedShare (gravel, grass, the cameraman, coffee; measured 0-0.01, the suite's brick
 // walls 0.31-0.33). Only an 8-bit grey image is read; points off it are not counted.
 TEST(Benerf, RepeatedTextureIsTheFlowsRepeatWithinItsReach) {
   const int W = 346, H = 260;
