@@ -611,9 +611,9 @@ struct TrackedPoints {
   // failed; empty at mid-exposure.
   std::vector<cv::Mat> flows;
   int tiles_x = 1, tiles_y = 1;
-  int without_events = 0;  // textured points left out: too few events around them
-  cv::Mat mid8;            // the mid frame as the flow saw it
-  double repeated = -1;    // repeatedTextureShare of the tracks, once asked (-1 before)
+  int without_events = 0;          // textured points left out: too few events around them
+  cv::Mat mid8;                    // the mid frame as the flow saw it
+  std::optional<double> repeated;  // repeatedTextureShare of the tracks, once asked
 };
 
 TrackedPoints trackLatentFrames(const Observation& obs, const std::optional<Contrast>& contrast,
@@ -786,13 +786,13 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
   // misfit of about a pixel (BENCHMARKS.md, "What the registration's misfit measures").
   bool explained = chosen.residual_px <= 1.0;
   if (!explained && bar == MisfitBar::kUnlessRepeated && chosen.residual_px <= kMostMisfitPx) {
-    if (points.repeated < 0) {
+    if (!points.repeated) {
       std::vector<Eigen::Vector2d> at;
       for (size_t i = 0; i < tracks.size(); i += kRepeatSampleEvery) at.push_back(tracks[i].pixel);
       points.repeated = repeatedTextureShare(points.mid8, at);
     }
-    m.repeated_share = points.repeated;
-    explained = points.repeated < kMostRepeatedShare;
+    m.repeated_share = *points.repeated;
+    explained = *points.repeated < kMostRepeatedShare;
   }
   if (!explained) {
     m.inverse_depth = cv::Mat();
