@@ -19,6 +19,19 @@ namespace evkit::test {
 
 namespace fs = std::filesystem;
 
+// Whether the tests run under AddressSanitizer (the sanitizer build).
+#if defined(__SANITIZE_ADDRESS__)
+inline constexpr bool kSanitized = true;
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+inline constexpr bool kSanitized = true;
+#else
+inline constexpr bool kSanitized = false;
+#endif
+#else
+inline constexpr bool kSanitized = false;
+#endif
+
 // A fresh folder removed at the end of the test.
 class ScratchDir {
  public:

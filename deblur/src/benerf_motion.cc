@@ -50,6 +50,7 @@ struct Track {
   Vector3 bearing;
   Eigen::Vector2d pixel;
   int tile = 0;
+  float events = 0;  // the events of the exposure per pixel around it (eventsPerPixel)
   std::vector<Eigen::Vector2d> seen;
 };
 
@@ -667,6 +668,7 @@ TrackedPoints trackLatentFrames(const Observation& obs, const std::optional<Cont
       Track tr;
       tr.pixel = {x, y};
       tr.tile = tileOf(x, y, W, H, kTilesX, kTilesY);
+      tr.events = fired.at<float>(y, x);
       tr.seen.assign(intervals + 1, Eigen::Vector2d::Constant(std::nan("")));
       tracks.push_back(std::move(tr));
     }
@@ -805,6 +807,26 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
   return m;
 }
 
+// fitMotion, and with kUnlessRepeated where its rigid camera does not explain the points, fitted
+// again to those that fired at least kFiredEventsPerPixel, whose flows follow the motion more
+// closely (ExposureMotion in benerf.h); `points` becomes the points of the motion returned.
+ExposureMotion fitMotionToFiredPoints(const PinholeCamera& camera, TrackedPoints& points,
+                                      bool choose_offset, MisfitBar bar) {
+  ExposureMotion motion = fitMotion(camera, points, choose_offset, bar);
+  if (!motion.poses.empty() || bar != MisfitBar::kUnlessRepeated) return motion;
+  TrackedPoints fired = points;
+  fired.repeated.reset();
+  std::erase_if(fired.tracks, [](const Track& tr) { return tr.events < kFiredEventsPerPixel; });
+  if (fired.tracks.size() < static_cast<size_t>(kMinTracks) ||
+      fired.tracks.size() == points.tracks.size())
+    return motion;
+  ExposureMotion retry = fitMotion(camera, fired, choose_offset, bar);
+  if (retry.poses.empty()) return motion;
+  retry.tracks_few_events = static_cast<int>(points.tracks.size() - fired.tracks.size());
+  points = std::move(fired);
+  return retry;
+}
+
 // Whether the neighbourhood of `point` (a pixel of the full image) repeats within the flow's reach
 // in `half`, the image at half size (repeatedTextureShare); none where its patch leaves the image.
 std::optional<bool> repeatsWithinReach(const cv::Mat& half, const Eigen::Vector2d& point) {
@@ -852,7 +874,7 @@ ExposureMotion motionFromLatentFrames(const Observation& obs, const PinholeCamer
                                       const LogMapping& log, bool choose_depth_offset,
                                       int intervals, MisfitBar bar) {
   TrackedPoints points = trackLatentFrames(obs, contrast, log, intervals);
-  return fitMotion(camera, points, choose_depth_offset, bar);
+  return fitMotionToFiredPoints(camera, points, choose_depth_offset, bar);
 }
 
 double repeatedTextureShare(const cv::Mat& image8, std::span<const Eigen::Vector2d> points) {
@@ -908,7 +930,7 @@ CalibratedMotion calibrateFromLatentFrames(const Observation& obs, const Pinhole
   TrackedPoints points = trackLatentFrames(obs, contrast, log, intervals);
   CalibratedMotion best;
   best.camera = assumed;
-  best.motion = fitMotion(assumed, points, true, bar);
+  best.motion = fitMotionToFiredPoints(assumed, points, true, bar);
   best.residual_assumed_px = best.motion.residual_depth_px;
   best.cameras_tried = 1;
   if (best.motion.tracks < kMinTracks) return best;
@@ -925,6 +947,7 @@ CalibratedMotion calibrateFromLatentFrames(const Observation& obs, const Pinhole
   for (const double k1 : kLensK1) {
     if (k1 == 0) continue;
     ExposureMotion m = fitMotion(camera(k1), points, true, bar);
+    m.tracks_few_events = best.motion.tracks_few_events;
     ++best.cameras_tried;
     if (!(m.residual_depth_px < (1 - kLensGain) * residual)) continue;
     residual = m.residual_depth_px;

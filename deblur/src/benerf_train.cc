@@ -140,6 +140,8 @@ void reportMotion(const ExposureMotion& motion, DeblurResult& result) {
   result.parameters["representation_pixel_depth"] = motion.pixel_depth ? 1 : 0;
   result.parameters["motion_tracks"] = motion.tracks;
   result.parameters["motion_tracks_without_events"] = motion.tracks_without_events;
+  if (motion.tracks_few_events > 0)
+    result.parameters["motion_tracks_few_events"] = motion.tracks_few_events;
   if (motion.repeated_share >= 0)
     result.parameters["motion_repeated_share"] = motion.repeated_share;
 }

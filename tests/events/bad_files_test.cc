@@ -20,20 +20,9 @@
 namespace evkit {
 namespace {
 
+using test::kSanitized;
 using test::openDescriptors;
 using test::ScratchDir;
-
-#if defined(__SANITIZE_ADDRESS__)
-constexpr bool kSanitized = true;
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
-constexpr bool kSanitized = true;
-#else
-constexpr bool kSanitized = false;
-#endif
-#else
-constexpr bool kSanitized = false;
-#endif
 
 // Resident set size in kB (VmRSS of /proc/self/status); -1 when unknown.
 long residentKb() {
