@@ -3,31 +3,35 @@
 # suites: photographs not in them": 24 observations (shakes, blurs and seeds of no suite; the first
 # eleven at 22, 35 and 48 px of blur, the other thirteen at 25 and 40 px; 11 with the noisy
 # suite's events), EDI and BeNeRF `fast` on each, then a table of PSNR at mid-exposure:
-#   bash benchmarks/held_out_photos.sh EVKIT OUT [--unknown-contrast] [--suite-photos|--more-shakes]
+#   bash benchmarks/held_out_photos.sh EVKIT OUT [--unknown-contrast] [--suite-photos|--more-shakes|--new-shakes]
 # The photographs are python3-skimage's other data images, each linked under the file name of the
 # suite photograph it stands in for ($EVKIT_PHOTOS names another skimage data folder). With
 # --suite-photos, twelve other shakes (seeds 801-812, 25 and 40 px, four in colour) on the suite's
 # own photographs instead, into OUT/suite-photos. With --more-shakes, fourteen more shakes of the
 # same layouts and photographs (seeds 901-914, 36-46 px, six noisy), measured after the
 # registration's bar was set (BENCHMARKS.md, "What the registration's misfit measures"), into
-# OUT/more-shakes. Runs that finished are kept; remove OUT/runs to repeat them.
+# OUT/more-shakes. With --new-shakes, ten more (seeds 951-960, 30-50 px, seven noisy), measured
+# after the refit on the points that fired (BENCHMARKS.md, "Where few events fired"), into
+# OUT/new-shakes. Runs that finished are kept; remove OUT/runs to repeat them.
 set -u
-usage() { echo "usage: $0 EVKIT OUT [--unknown-contrast] [--suite-photos|--more-shakes]" >&2; exit 2; }
+usage() { echo "usage: $0 EVKIT OUT [--unknown-contrast] [--suite-photos|--more-shakes|--new-shakes]" >&2; exit 2; }
 [ $# -ge 2 ] || usage
-evkit=$1 out=$2 unknown='' suite_photos='' more_shakes=''
+evkit=$1 out=$2 unknown='' suite_photos='' more_shakes='' new_shakes=''
 shift 2
 for option in "$@"; do
   case $option in
     --unknown-contrast) unknown=1 ;;
     --suite-photos) suite_photos=1 ;;
     --more-shakes) more_shakes=1 ;;
+    --new-shakes) new_shakes=1 ;;
     *) usage ;;
   esac
 done
 data=${EVKIT_PHOTOS:-/usr/lib/python3/dist-packages/skimage/data}
-[ -n "$suite_photos" ] && [ -n "$more_shakes" ] && usage
+[ $(( ${suite_photos:-0} + ${more_shakes:-0} + ${new_shakes:-0} )) -gt 1 ] && usage
 [ -n "$suite_photos" ] && out=$out/suite-photos
 [ -n "$more_shakes" ] && out=$out/more-shakes
+[ -n "$new_shakes" ] && out=$out/new-shakes
 mkdir -p "$out/photos" "$out/obs" "$out/runs" || exit 1
 # suite file name -> the photograph that stands in for it
 while read -r suite other; do
@@ -65,6 +69,17 @@ astronaut_plane 25 809 0.4 n c
 hubble_rocket 40 810 0.7 - -
 text_coins 40 811 0.6 n -
 motorcycle 25 812 0.4 - c"
+elif [ -n "$new_shakes" ]; then
+  frames="four_layers 40 951 0.5 n -
+four_layers 50 952 0.3 n -
+four_layers 30 953 0.6 - -
+cameraman_grass 44 954 0.4 n -
+cat_bricks 42 955 0.5 n -
+rocket_layers 46 956 0.4 n -
+text_coins 40 957 0.5 n -
+hubble_rocket 48 958 0.6 n -
+four_layers 44 959 0.4 - -
+cat_bricks 50 960 0.3 - -"
 elif [ -n "$more_shakes" ]; then
   frames="coffee_astronaut 45 901 0.4 - -
 cat_bricks 44 902 0.5 n -
