@@ -814,15 +814,16 @@ ExposureMotion fitMotionToFiredPoints(const PinholeCamera& camera, TrackedPoints
                                       bool choose_offset, MisfitBar bar) {
   ExposureMotion motion = fitMotion(camera, points, choose_offset, bar);
   if (!motion.poses.empty() || bar != MisfitBar::kUnlessRepeated) return motion;
+  const auto few = [](const Track& tr) { return tr.events < kFiredEventsPerPixel; };
+  const auto left_out = std::count_if(points.tracks.begin(), points.tracks.end(), few);
+  const auto kept = static_cast<std::ptrdiff_t>(points.tracks.size()) - left_out;
+  if (left_out == 0 || kept < kMinTracks) return motion;
   TrackedPoints fired = points;
   fired.repeated.reset();
-  std::erase_if(fired.tracks, [](const Track& tr) { return tr.events < kFiredEventsPerPixel; });
-  if (fired.tracks.size() < static_cast<size_t>(kMinTracks) ||
-      fired.tracks.size() == points.tracks.size())
-    return motion;
+  std::erase_if(fired.tracks, few);
   ExposureMotion retry = fitMotion(camera, fired, choose_offset, bar);
   if (retry.poses.empty()) return motion;
-  retry.tracks_few_events = static_cast<int>(points.tracks.size() - fired.tracks.size());
+  retry.tracks_few_events = static_cast<int>(left_out);
   points = std::move(fired);
   return retry;
 }

@@ -345,11 +345,9 @@ std::optional<Observation> naturalObservation(const std::string& scene, uint64_t
   return halfSizeNatural(scene, {}, {}, seed, blur_px, 0.7);
 }
 
-// As the natural suite makes it: events from a 30 ms pre-roll, with the suite's DAVIS-like noise
-// where `noisy` (mismatch 0.03, shot noise 1 Hz, leak 0.1 Hz); `seed` the shake's, the events' and
-// the scene's.
-std::optional<Observation> prerolledNatural(const std::string& scene, uint64_t seed, double blur_px,
-                                            double rotation_share, bool noisy) {
+// The natural suite's events: from a 30 ms pre-roll, with the suite's DAVIS-like noise where
+// `noisy` (mismatch 0.03, shot noise 1 Hz, leak 0.1 Hz); `seed` the events'.
+synth::SynthOptions naturalEvents(uint64_t seed, bool noisy) {
   synth::SynthOptions o;
   o.simulator.seed = seed;
   o.preroll_us = 30000;
@@ -358,6 +356,13 @@ std::optional<Observation> prerolledNatural(const std::string& scene, uint64_t s
     o.simulator.shot_noise_rate_hz = 1;
     o.simulator.leak_rate_hz = 0.1;
   }
+  return o;
+}
+
+// As the natural suite makes it (naturalEvents); `seed` the shake's, the events' and the scene's.
+std::optional<Observation> prerolledNatural(const std::string& scene, uint64_t seed, double blur_px,
+                                            double rotation_share, bool noisy) {
+  const synth::SynthOptions o = naturalEvents(seed, noisy);
   synth::SceneOptions scene_options;
   scene_options.seed = seed;
   return halfSizeNatural(scene, scene_options, o, seed, blur_px, rotation_share);
@@ -1253,15 +1258,11 @@ TEST(Benerf, RegistrationFitsAgainToThePointsThatFired) {
                                      {"grass.png", "microaneurysms.png"},
                                      {"camera.png", "phantom.png"}})
     std::filesystem::create_symlink(skimage / other, std::filesystem::path(dir / "photos") / suite);
-  synth::SynthOptions o;
+  synth::SynthOptions o = naturalEvents(714, true);
   o.shake.blur_px = 40;
-  o.shake.seed = o.simulator.seed = 714;
+  o.shake.seed = 714;
   o.shake.rotation_share = 0.4;
   o.shake.share_of_image_motion = true;
-  o.preroll_us = 30000;
-  o.simulator.sigma = 0.03;
-  o.simulator.shot_noise_rate_hz = 1;
-  o.simulator.leak_rate_hz = 0.1;
   synth::SceneOptions scene;
   scene.seed = 714;
   scene.photo_dir = dir / "photos";
