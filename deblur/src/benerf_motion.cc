@@ -496,16 +496,29 @@ cv::Mat inverseDepthMap(const PinholeCamera& camera, const DepthModel& model, co
 // and the residual stayed above 1 px.
 constexpr double kDepthTest = 4.0;
 
+// How far (px) around a pixel the near side of a depth edge is looked for (EdgeSide::kNear).
+constexpr int kEdgeSideReach = 8;
+
+// Which depth a pixel whose own flows settle nothing takes next to a depth edge: the prior's
+// (the tiles', interpolated bilinearly between their centres, so that it ramps from one side's
+// depth to the other's over a tile: no surface's depth), or the nearest within kEdgeSideReach px
+// (the occluding side's). On cameraman_grass_blur44_noisy a thin bright rim along the near
+// phantom's edge, whose flows failed their forward-backward check, kept the ramp's depths, halfway
+// between the layers: 223 pixels of it cost 5.5 dB (BENCHMARKS.md, "The near side of a depth
+// edge").
+enum class EdgeSide { kPrior, kNear };
+
 // Each pixel's inverse depth from its own dense flows, given every time's motion: Gauss-Newton on
 // them with Huber weights from the prior map's value, which weighs as one flow a pixel off, kept
 // where it passes kDepthTest against the prior (where the translation moves the image too little to
-// tell the depths apart, or the flows are noise, the prior's stays); then a 5 x 5 median, which
-// takes out single pixels' outliers and keeps the layers' edges. The tiles' depths blur a near
-// layer into its far surround over a tile and more; the flows resolve it. `variance`: the tracks'
-// residual variance (px^2) under the prior's model.
+// tell the depths apart, or the flows are noise, the prior's stays, or with EdgeSide::kNear the
+// nearest around where that moves the image by over a pixel more than the farthest around); then
+// a 5 x 5 median, which takes out single pixels' outliers and keeps the layers' edges. The tiles'
+// depths blur a near layer into its far surround over a tile and more; the flows resolve it.
+// `variance`: the tracks' residual variance (px^2) under the prior's model.
 cv::Mat pixelInverseDepth(const PinholeCamera& camera, const std::vector<cv::Mat>& flows, int mid,
                           const std::vector<Vector3>& theta, const std::vector<Vector3>& p,
-                          const cv::Mat& prior, double variance) {
+                          const cv::Mat& prior, double variance, EdgeSide edge_side) {
   const int W = camera.width, H = camera.height, times = static_cast<int>(theta.size());
   const std::vector<Matrix3> Rt = transposedRotations(theta);
   // A pixel's own inverse depth at most the prior's largest (or kNearestScale): one beyond the
@@ -515,6 +528,7 @@ cv::Mat pixelInverseDepth(const PinholeCamera& camera, const std::vector<cv::Mat
   cv::minMaxLoc(prior, nullptr, &upper);
   upper = std::max(upper, kNearestScale);
   cv::Mat rho(H, W, CV_32F);
+  cv::Mat own(H, W, CV_8U);  // 1 where the pixel's own flows set its depth
 #pragma omp parallel for schedule(static)
   for (int y = 0; y < H; ++y) {
     for (int x = 0; x < W; ++x) {
@@ -552,11 +566,37 @@ cv::Mat pixelInverseDepth(const PinholeCamera& camera, const std::vector<cv::Mat
       // An estimate at a bound of the range is no minimum of the cost: the flows there follow
       // something other than the pixel (an occluding edge's, a failed flow).
       const bool at_bound = r <= 0 || r >= upper;
-      if (at_bound ||
-          !(cost(r0, nullptr, nullptr) - cost(r, nullptr, nullptr) > kDepthTest * variance))
-        r = r0;
-      rho.at<float>(y, x) = static_cast<float>(r);
+      const bool kept = !at_bound && cost(r0, nullptr, nullptr) - cost(r, nullptr, nullptr) >
+                                         kDepthTest * variance;
+      rho.at<float>(y, x) = static_cast<float>(kept ? r : r0);
+      own.at<uint8_t>(y, x) = kept ? 1 : 0;
     }
+  }
+  if (edge_side == EdgeSide::kNear) {
+    const cv::Mat window = cv::getStructuringElement(
+        cv::MORPH_RECT, cv::Size(2 * kEdgeSideReach + 1, 2 * kEdgeSideReach + 1));
+    cv::Mat nearest, farthest;
+    cv::dilate(rho, nearest, window);
+    cv::erode(rho, farthest, window);
+    cv::Mat sided = rho.clone();
+#pragma omp parallel for schedule(static)
+    for (int y = 0; y < H; ++y) {
+      for (int x = 0; x < W; ++x) {
+        const double near = nearest.at<float>(y, x), far = farthest.at<float>(y, x);
+        if (own.at<uint8_t>(y, x) || !(near > far)) continue;
+        // A depth edge where the two sides' points part by over a pixel at some time.
+        const Vector3 b = nerf::pixelDirection(camera, x, y);
+        bool edge = false;
+        for (int k = 0; k < times && !edge; ++k) {
+          const auto i = static_cast<size_t>(k);
+          edge = (nerf::projectPoint(camera, Rt[i] * (b - near * p[i])) -
+                  nerf::projectPoint(camera, Rt[i] * (b - far * p[i])))
+                     .norm() > 1.0;
+        }
+        if (edge) sided.at<float>(y, x) = static_cast<float>(near);
+      }
+    }
+    rho = sided;
   }
   cv::medianBlur(rho, rho, 5);
   return rho;
@@ -754,31 +794,41 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
   RigidFit chosen = m.depth ? tiles : plane;
   m.inverse_depth =
       inverseDepthMap(camera, m.depth ? tile_model : plane_model, chosen, kTilesX, kTilesY);
+  std::optional<RigidFit> near_edges;
+  cv::Mat near_edges_map;
   if (m.depth) {
-    // Each pixel's own depth from the dense flows, then each time's motion again through it.
+    // Each pixel's own depth from the dense flows, then each time's motion again through it; and
+    // the same with the near side's depth where a pixel's flows settle nothing at a depth edge.
     const cv::Mat tile_map = m.inverse_depth;
-    RigidFit pixels = tiles;
-    cv::Mat map;
     const double ridge = translationRidge(camera, tracks);
-    for (int round = 0; round < 2; ++round) {
-      map = pixelInverseDepth(camera, points.flows, mid, pixels.theta, pixels.p, tile_map,
-                              tiles.residual_px * tiles.residual_px);
-      for (size_t i = 0; i < tracks.size(); ++i)
-        pixels.rho[i] = map.at<float>(static_cast<int>(tracks[i].pixel.y()),
-                                      static_cast<int>(tracks[i].pixel.x()));
+    const auto refine = [&](EdgeSide side, cv::Mat& map) {
+      RigidFit pixels = tiles;
+      for (int round = 0; round < 2; ++round) {
+        map = pixelInverseDepth(camera, points.flows, mid, pixels.theta, pixels.p, tile_map,
+                                tiles.residual_px * tiles.residual_px, side);
+        for (size_t i = 0; i < tracks.size(); ++i)
+          pixels.rho[i] = map.at<float>(static_cast<int>(tracks[i].pixel.y()),
+                                        static_cast<int>(tracks[i].pixel.x()));
 #pragma omp parallel for schedule(dynamic)
-      for (int k = 0; k < times; ++k) {
-        if (k != mid)
-          fitTime(camera, tracks, pixels.rho, k, true, ridge, pixels.theta[static_cast<size_t>(k)],
-                  pixels.p[static_cast<size_t>(k)]);
+        for (int k = 0; k < times; ++k) {
+          if (k != mid)
+            fitTime(camera, tracks, pixels.rho, k, true, ridge,
+                    pixels.theta[static_cast<size_t>(k)], pixels.p[static_cast<size_t>(k)]);
+        }
       }
-    }
-    pixels.residual_px = rmsResidual(camera, tracks, pixels.rho, pixels.theta, pixels.p);
+      pixels.residual_px = rmsResidual(camera, tracks, pixels.rho, pixels.theta, pixels.p);
+      return pixels;
+    };
+    cv::Mat map;
+    const RigidFit pixels = refine(EdgeSide::kPrior, map);
     m.residual_pixels_px = pixels.residual_px;
     if (pixels.residual_px < tiles.residual_px) {
       chosen = pixels;
       m.inverse_depth = map;
       m.pixel_depth = true;
+      // The near sides' alternative where it differs (its poses where it passes the bar below).
+      RigidFit sided = refine(EdgeSide::kNear, near_edges_map);
+      if (cv::norm(near_edges_map, map, cv::NORM_INF) > 0) near_edges = std::move(sided);
     }
   }
   // A rigid camera that does not explain the registration (motion beyond the models, a
@@ -786,23 +836,36 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
   // with kUnlessRepeated up to kMostMisfitPx too unless the texture repeats within the flow's
   // reach, where a flow locks onto a repeat with a bias that the per-pixel depth absorbs into a
   // misfit of about a pixel (BENCHMARKS.md, "What the registration's misfit measures").
-  bool explained = chosen.residual_px <= 1.0;
-  if (!explained && bar == MisfitBar::kUnlessRepeated && chosen.residual_px <= kMostMisfitPx) {
+  const auto explains = [&](double residual_px) {
+    if (residual_px <= 1.0) return true;
+    if (bar != MisfitBar::kUnlessRepeated || !(residual_px <= kMostMisfitPx)) return false;
     if (!points.repeated) {
       std::vector<Eigen::Vector2d> at;
       for (size_t i = 0; i < tracks.size(); i += kRepeatSampleEvery) at.push_back(tracks[i].pixel);
       points.repeated = repeatedTextureShare(points.mid8, at);
     }
     m.repeated_share = *points.repeated;
-    explained = *points.repeated < kMostRepeatedShare;
-  }
-  if (!explained) {
+    return *points.repeated < kMostRepeatedShare;
+  };
+  if (!explains(chosen.residual_px)) {
     m.inverse_depth = cv::Mat();
     return m;
   }
   for (int k = 0; k < times; ++k) {
     const auto i = static_cast<size_t>(k);
     m.poses.push_back({points.times[i], SE3(expSO3(chosen.theta[i]), chosen.p[i])});
+  }
+  // The near sides' alternative where its tracks pass the same bar (the points near an occluding
+  // edge whose flows failed take the near side's depth there too, and misfit more).
+  if (near_edges && explains(near_edges->residual_px)) {
+    ExposureMotion::NearEdges& alternative = m.near_edges.emplace();
+    for (int k = 0; k < times; ++k) {
+      const auto i = static_cast<size_t>(k);
+      alternative.poses.push_back(
+          {points.times[i], SE3(expSO3(near_edges->theta[i]), near_edges->p[i])});
+    }
+    alternative.inverse_depth = near_edges_map;
+    alternative.residual_px = near_edges->residual_px;
   }
   return m;
 }

@@ -144,6 +144,10 @@ void reportMotion(const ExposureMotion& motion, DeblurResult& result) {
     result.parameters["motion_tracks_few_events"] = motion.tracks_few_events;
   if (motion.repeated_share >= 0)
     result.parameters["motion_repeated_share"] = motion.repeated_share;
+  if (motion.near_edges)
+    result.parameters["motion_residual_near_edges_px"] = motion.near_edges->residual_px;
+  else
+    result.parameters.erase("motion_residual_near_edges_px");  // a registration before this one's
 }
 
 Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& result) {
@@ -671,7 +675,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     }
     result.timings_s["registration_dense"] = secondsSince(dense_start);
   }
-  const cv::Mat& inverse_depth = registered.inverse_depth;
+  cv::Mat inverse_depth = registered.inverse_depth;
   const Observation filtered =
       o.support_px > 0
           ? supportedEvents(
@@ -684,8 +688,33 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   // comparison, so its variance grows as C^2: its weight is beta at kBetaContrast and
   // (kBetaContrast / C)^2 beta at C (maximum likelihood; the short solves that find c keep beta).
   po.beta *= std::pow(kBetaContrast / (0.5 * (contrast.on + contrast.off)), 2);
-  PixelGridProblem problem(obs, camera, motion, inverse_depth, contrast, po);
-  std::vector<double> x = problem.start(ediMidFrame(obs, contrast));
+  const cv::Mat edi_mid = ediMidFrame(obs, contrast);
+  std::optional<PixelGridProblem> problem;
+  problem.emplace(obs, camera, motion, inverse_depth, contrast, po);
+  std::vector<double> x = problem->start(edi_mid);
+  // Where the registration offers the near sides' depths at its depth edges (ExposureMotion::
+  // near_edges), the geometry through which EDI's mid frame agrees better with the blurry frame
+  // and the events: the grid's loss there, before the motion's refinement (BENCHMARKS.md, "The near
+  // side of a depth edge").
+  if (registered.near_edges) {
+    const Trajectory near_motion = fit(registered.near_edges->poses);
+    PixelGridProblem near(obs, camera, near_motion, registered.near_edges->inverse_depth, contrast,
+                          po);
+    std::vector<double> near_x = near.start(edi_mid);
+    const double as_registered = problem->evaluate(x, nullptr),
+                 near_loss = near.evaluate(near_x, nullptr);
+    result.parameters["depth_edges_near_loss"] = near_loss / as_registered;
+    const bool take = near_loss < as_registered;
+    result.parameters["depth_edges_near"] = take ? 1 : 0;
+    if (take) {
+      problem = std::move(near);
+      x = std::move(near_x);
+      motion = near_motion;
+      inverse_depth = registered.near_edges->inverse_depth;
+    } else {
+      fit(registered.poses);  // its knots' parameters again
+    }
+  }
   result.timings_s["setup"] = secondsSince(start);
   const auto train_start = Clock::now();
   PixelGridProblem::Terms terms;
@@ -697,7 +726,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
                                          std::chrono::duration<double>(0.95 * o.budget_seconds))
                            : Clock::time_point::max();
   const int steps = std::max(2, o.iterations / 10);
-  if (po.motion_steps > 0) problem.refineMotion(x, po.motion_steps);
+  if (po.motion_steps > 0) problem->refineMotion(x, po.motion_steps);
   // The loss after every step, and the caller's progress (which may stop the run by throwing).
   const auto progress = [&](int done, double loss) {
     result.curve.emplace_back(done, loss);
@@ -705,9 +734,10 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   };
   // The start is kept where the grid's model misses the blurry frame by at least half of what
   // deblurring changes (kKeepStart): there the blur term would fit the model's own error.
-  const StartFit at_start = startFit(problem, x, obs.blurry);
+  const StartFit at_start = startFit(*problem, x, obs.blurry);
   const bool misfit = at_start.misfit >= kKeepStart * at_start.change;
-  const bool to_hash = misfit && problem.blurLength() >= kHashBlur, keep_start = misfit && !to_hash;
+  const bool to_hash = misfit && problem->blurLength() >= kHashBlur,
+             keep_start = misfit && !to_hash;
   result.parameters["start_blur_misfit"] = at_start.misfit;
   result.parameters["start_change"] = at_start.change;
   result.parameters["start_kept"] = keep_start ? 1 : 0;
@@ -717,8 +747,8 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   }
   if (!keep_start && !(o.smooth > 0)) {
     const auto choice_start = Clock::now();
-    po.smoothness = chooseSmoothness(problem, x, steps, deadline, result);
-    problem.setSmoothness(po.smoothness);
+    po.smoothness = chooseSmoothness(*problem, x, steps, deadline, result);
+    problem->setSmoothness(po.smoothness);
     result.timings_s["smoothness"] = secondsSince(choice_start);
   }
   result.parameters["smoothness"] = po.smoothness;
@@ -730,11 +760,11 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   if (keep_start)
     terms = at_start.terms;
   else
-    iterations = problem.solve(x, steps, &terms, deadline, progress, convergedIn(0));
+    iterations = problem->solve(x, steps, &terms, deadline, progress, convergedIn(0));
   for (int round = 1; round <= rounds && Clock::now() < deadline; ++round) {
-    problem.refineMotion(x, kRoundMotionSteps);
+    problem->refineMotion(x, kRoundMotionSteps);
     const int done = iterations;
-    iterations += problem.solve(
+    iterations += problem->solve(
         x, std::max(PixelGridProblem::kConvergedSteps, steps - done), &terms, deadline,
         [&](int k, double loss) { progress(done + k, loss); }, convergedIn(round));
   }
@@ -746,7 +776,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     // A frame as the sensor would record it, read at its top where the image goes above it: where
     // the blurry frame clipped (PixelGridOptions::saturated), or where the events' noise pushed
     // a pixel up (the noisy suite's text, whose truth is at most 0.95).
-    f.image = cv::min(problem.render(x, t), 1.0);
+    f.image = cv::min(problem->render(x, t), 1.0);
     f.exposure_start_us = f.exposure_end_us = t;
     f.bit_depth = obs.blurry.bit_depth;
     result.frames.push_back(std::move(f));
@@ -757,15 +787,15 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   std::vector<StampedPose> trajectory;
   for (int k = 0; k <= 100; ++k) {
     const int64_t t = t0 + (t1 - t0) * k / 100;
-    trajectory.push_back({t, problem.motion().poseAt(t)});
+    trajectory.push_back({t, problem->motion().poseAt(t)});
   }
   result.trajectory = std::move(trajectory);
   result.parameters["iterations"] = iterations;
-  result.parameters["virtual_views"] = problem.views();
-  result.parameters["field_parameters"] = problem.size();
-  result.parameters["blur_px_motion"] = problem.blurLength();
-  result.parameters["views_across_depth_edges"] = problem.acrossShare();
-  result.parameters["views_behind"] = problem.behindShare();
+  result.parameters["virtual_views"] = problem->views();
+  result.parameters["field_parameters"] = problem->size();
+  result.parameters["blur_px_motion"] = problem->blurLength();
+  result.parameters["views_across_depth_edges"] = problem->acrossShare();
+  result.parameters["views_behind"] = problem->behindShare();
   result.parameters["beta"] = po.beta;
   result.parameters["final_blur_term"] = terms.blur;
   result.parameters["final_event_term"] = terms.event;

@@ -333,6 +333,17 @@ struct ExposureMotion {
   // repeatedTextureShare of the tracked points where the misfit asked for it (above 1 px and up to
   // kMostMisfitPx); -1 elsewhere.
   double repeated_share = -1;
+  // With pixel_depth, the same refinement where each pixel whose own flows settle nothing next to a
+  // depth edge takes the nearest depth within 8 px (the occluding side's) instead of the tiles'
+  // (which ramp from one side's depth to the other's: no surface's); present where it differs and
+  // its tracks' residual passes the same bar as the poses'. Which of the two the data favour is
+  // for the caller to judge (the pixel grid: by its loss on EDI's mid frame).
+  struct NearEdges {
+    std::vector<StampedPose> poses;
+    cv::Mat inverse_depth;
+    double residual_px = 0;
+  };
+  std::optional<NearEdges> near_edges;
 };
 
 // The share of `points` (pixels of an 8-bit image) whose neighbourhood repeats within the flow's
