@@ -508,17 +508,21 @@ constexpr int kEdgeSideReach = 8;
 // edge").
 enum class EdgeSide { kPrior, kNear };
 
+// Each pixel's inverse depth from its own dense flows (float32), and where they set it (`own`,
+// CV_8U: 1 there, else the prior's value stays).
+struct OwnDepths {
+  cv::Mat rho, own;
+};
+
 // Each pixel's inverse depth from its own dense flows, given every time's motion: Gauss-Newton on
 // them with Huber weights from the prior map's value, which weighs as one flow a pixel off, kept
 // where it passes kDepthTest against the prior (where the translation moves the image too little to
-// tell the depths apart, or the flows are noise, the prior's stays, or with EdgeSide::kNear the
-// nearest around where that moves the image by over a pixel more than the farthest around); then
-// a 5 x 5 median, which takes out single pixels' outliers and keeps the layers' edges. The tiles'
-// depths blur a near layer into its far surround over a tile and more; the flows resolve it.
-// `variance`: the tracks' residual variance (px^2) under the prior's model.
-cv::Mat pixelInverseDepth(const PinholeCamera& camera, const std::vector<cv::Mat>& flows, int mid,
-                          const std::vector<Vector3>& theta, const std::vector<Vector3>& p,
-                          const cv::Mat& prior, double variance, EdgeSide edge_side) {
+// tell the depths apart, or the flows are noise, the prior's stays). The tiles' depths blur a near
+// layer into its far surround over a tile and more; the flows resolve it. `variance`: the tracks'
+// residual variance (px^2) under the prior's model.
+OwnDepths ownInverseDepths(const PinholeCamera& camera, const std::vector<cv::Mat>& flows, int mid,
+                           const std::vector<Vector3>& theta, const std::vector<Vector3>& p,
+                           const cv::Mat& prior, double variance) {
   const int W = camera.width, H = camera.height, times = static_cast<int>(theta.size());
   const std::vector<Matrix3> Rt = transposedRotations(theta);
   // A pixel's own inverse depth at most the prior's largest (or kNearestScale): one beyond the
@@ -572,6 +576,20 @@ cv::Mat pixelInverseDepth(const PinholeCamera& camera, const std::vector<cv::Mat
       own.at<uint8_t>(y, x) = kept ? 1 : 0;
     }
   }
+  return {rho, own};
+}
+
+// The per-pixel inverse depth map from ownInverseDepths: where a pixel's own flows did not set it,
+// with EdgeSide::kNear the nearest around where that moves the image by over a pixel more than the
+// farthest around; then a 5 x 5 median, which takes out single pixels' outliers and keeps the
+// layers' edges.
+cv::Mat pixelInverseDepth(const PinholeCamera& camera, const std::vector<Vector3>& theta,
+                          const std::vector<Vector3>& p, const OwnDepths& depths,
+                          EdgeSide edge_side) {
+  const int W = camera.width, H = camera.height, times = static_cast<int>(theta.size());
+  const std::vector<Matrix3> Rt = transposedRotations(theta);
+  cv::Mat rho = depths.rho.clone();
+  const cv::Mat& own = depths.own;
   if (edge_side == EdgeSide::kNear) {
     const cv::Mat window = cv::getStructuringElement(
         cv::MORPH_RECT, cv::Size(2 * kEdgeSideReach + 1, 2 * kEdgeSideReach + 1));
@@ -801,11 +819,17 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
     // the same with the near side's depth where a pixel's flows settle nothing at a depth edge.
     const cv::Mat tile_map = m.inverse_depth;
     const double ridge = translationRidge(camera, tracks);
+    const auto own = [&](const RigidFit& fit) {
+      return ownInverseDepths(camera, points.flows, mid, fit.theta, fit.p, tile_map,
+                              tiles.residual_px * tiles.residual_px);
+    };
+    // The first round's own depths, through the tiles' motion: the same for both maps.
+    const OwnDepths first = own(tiles);
     const auto refine = [&](EdgeSide side, cv::Mat& map) {
       RigidFit pixels = tiles;
       for (int round = 0; round < 2; ++round) {
-        map = pixelInverseDepth(camera, points.flows, mid, pixels.theta, pixels.p, tile_map,
-                                tiles.residual_px * tiles.residual_px, side);
+        map = pixelInverseDepth(camera, pixels.theta, pixels.p, round == 0 ? first : own(pixels),
+                                side);
         for (size_t i = 0; i < tracks.size(); ++i)
           pixels.rho[i] = map.at<float>(static_cast<int>(tracks[i].pixel.y()),
                                         static_cast<int>(tracks[i].pixel.x()));
@@ -851,22 +875,19 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
     m.inverse_depth = cv::Mat();
     return m;
   }
-  for (int k = 0; k < times; ++k) {
-    const auto i = static_cast<size_t>(k);
-    m.poses.push_back({points.times[i], SE3(expSO3(chosen.theta[i]), chosen.p[i])});
-  }
-  // The near sides' alternative where its tracks pass the same bar (the points near an occluding
-  // edge whose flows failed take the near side's depth there too, and misfit more).
-  if (near_edges && explains(near_edges->residual_px)) {
-    ExposureMotion::NearEdges& alternative = m.near_edges.emplace();
+  const auto posesOf = [&](const RigidFit& fit) {
+    std::vector<StampedPose> poses;
     for (int k = 0; k < times; ++k) {
       const auto i = static_cast<size_t>(k);
-      alternative.poses.push_back(
-          {points.times[i], SE3(expSO3(near_edges->theta[i]), near_edges->p[i])});
+      poses.push_back({points.times[i], SE3(expSO3(fit.theta[i]), fit.p[i])});
     }
-    alternative.inverse_depth = near_edges_map;
-    alternative.residual_px = near_edges->residual_px;
-  }
+    return poses;
+  };
+  m.poses = posesOf(chosen);
+  // The near sides' alternative where its tracks pass the same bar (the points near an occluding
+  // edge whose flows failed take the near side's depth there too, and misfit more).
+  if (near_edges && explains(near_edges->residual_px))
+    m.near_edges = {posesOf(*near_edges), near_edges_map, near_edges->residual_px};
   return m;
 }
 

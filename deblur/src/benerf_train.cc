@@ -697,23 +697,24 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   // and the events: the grid's loss there, before the motion's refinement (BENCHMARKS.md, "The near
   // side of a depth edge").
   if (registered.near_edges) {
+    const auto registered_parameters = result.parameters;  // fit's knots', for the registered
     const Trajectory near_motion = fit(registered.near_edges->poses);
     PixelGridProblem near(obs, camera, near_motion, registered.near_edges->inverse_depth, contrast,
                           po);
     std::vector<double> near_x = near.start(edi_mid);
     const double as_registered = problem->evaluate(x, nullptr),
                  near_loss = near.evaluate(near_x, nullptr);
-    result.parameters["depth_edges_near_loss"] = near_loss / as_registered;
     const bool take = near_loss < as_registered;
-    result.parameters["depth_edges_near"] = take ? 1 : 0;
     if (take) {
       problem = std::move(near);
       x = std::move(near_x);
       motion = near_motion;
       inverse_depth = registered.near_edges->inverse_depth;
     } else {
-      fit(registered.poses);  // its knots' parameters again
+      result.parameters = registered_parameters;
     }
+    result.parameters["depth_edges_near_loss"] = near_loss / as_registered;
+    result.parameters["depth_edges_near"] = take ? 1 : 0;
   }
   result.timings_s["setup"] = secondsSince(start);
   const auto train_start = Clock::now();
