@@ -758,9 +758,15 @@ TrackedPoints trackLatentFrames(const Observation& obs, const std::optional<Cont
   return out;
 }
 
+// How far fitMotion takes the depth model: to each pixel's own depth (and, where the depths' offset
+// is chosen, the near sides' alternative at the depth edges: a registration that feeds a
+// trajectory), or the tiles' alone, for a registration scored by its tiles' misfit only (the lens
+// ladder's candidates: 0.3 s each on cameraman_grass at 44 px, a tenth of the registration).
+enum class Depths { kPixels, kTiles };
+
 // The rigid camera's three models fitted to the tracked points as `camera` sees them.
 ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, bool choose_offset,
-                         MisfitBar bar) {
+                         MisfitBar bar, Depths depths = Depths::kPixels) {
   ExposureMotion m;
   std::vector<Track>& tracks = points.tracks;
   const int times = static_cast<int>(points.times.size()), mid = times / 2;
@@ -814,7 +820,7 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
       inverseDepthMap(camera, m.depth ? tile_model : plane_model, chosen, kTilesX, kTilesY);
   std::optional<RigidFit> near_edges;
   cv::Mat near_edges_map;
-  if (m.depth) {
+  if (m.depth && depths == Depths::kPixels) {
     // Each pixel's own depth from the dense flows, then each time's motion again through it; and
     // the same with the near side's depth where a pixel's flows settle nothing at a depth edge.
     const cv::Mat tile_map = m.inverse_depth;
@@ -850,9 +856,12 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
       chosen = pixels;
       m.inverse_depth = map;
       m.pixel_depth = true;
-      // The near sides' alternative where it differs (its poses where it passes the bar below).
-      RigidFit sided = refine(EdgeSide::kNear, near_edges_map);
-      if (cv::norm(near_edges_map, map, cv::NORM_INF) > 0) near_edges = std::move(sided);
+      // The near sides' alternative where it differs (its poses where it passes the bar below),
+      // for a registration that feeds a trajectory.
+      if (choose_offset) {
+        RigidFit sided = refine(EdgeSide::kNear, near_edges_map);
+        if (cv::norm(near_edges_map, map, cv::NORM_INF) > 0) near_edges = std::move(sided);
+      }
     }
   }
   // A rigid camera that does not explain the registration (motion beyond the models, a
@@ -1031,14 +1040,18 @@ CalibratedMotion calibrateFromLatentFrames(const Observation& obs, const Pinhole
   double residual = best.motion.residual_depth_px;
   for (const double k1 : kLensK1) {
     if (k1 == 0) continue;
-    ExposureMotion m = fitMotion(camera(k1), points, true, bar);
-    m.tracks_few_events = best.motion.tracks_few_events;
+    const ExposureMotion m = fitMotion(camera(k1), points, true, bar, Depths::kTiles);
     ++best.cameras_tried;
     if (!(m.residual_depth_px < (1 - kLensGain) * residual)) continue;
     residual = m.residual_depth_px;
-    best.motion = std::move(m);
     best.camera = camera(k1);
     best.estimated = true;
+  }
+  // The winning candidate's motion through each pixel's own depth.
+  if (best.estimated) {
+    const int few_events = best.motion.tracks_few_events;
+    best.motion = fitMotion(best.camera, points, true, bar);
+    best.motion.tracks_few_events = few_events;
   }
   return best;
 }

@@ -1321,6 +1321,10 @@ TEST(Benerf, AtADepthEdgePixelsWithoutFlowsTakeTheNearSideWhereTheDataPreferIt) 
   ASSERT_EQ(m.poses.size(), 9u) << "misfit " << registrationMisfit(m) << " px";
   ASSERT_TRUE(m.pixel_depth);
   ASSERT_TRUE(m.near_edges);
+  // A registration that is only scored (the depths' offset not chosen) makes no alternative.
+  EXPECT_FALSE(motionFromLatentFrames(obs, obs.camera.withSize(W, H), obs.contrast, {}, false,
+                                      kScoredIntervals, MisfitBar::kUnlessRepeated)
+                   .near_edges);
   // The phantom's rim: its pixels within 3 px of its edge.
   const cv::Mat near = obs.gt_depth < 3;
   cv::Mat inside;
@@ -1858,6 +1862,37 @@ TEST(Benerf, WithoutACalibrationTheGridEstimatesTheLensDistortion) {
   const CalibratedMotion none =
       calibrateFromLatentFrames(pinhole, pinhole.camera.withSize(120, 90), pinhole.contrast);
   EXPECT_FALSE(none.estimated) << "k1 " << none.camera.distortion[0] << ", fx " << none.camera.fx;
+}
+
+// The lens ladder's candidates are scored by their tiles' misfit alone; the one chosen is then
+// registered to the end, through each pixel's own depth where the scene has depth: four
+// photographs at four depths through the same wide lens, at 120 x 90.
+TEST(Benerf, TheLensChosenIsRegisteredThroughEachPixelsDepth) {
+  if (!std::filesystem::exists(synth::defaultPhotoDir()))
+    GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
+  ScratchDir dir;
+  synth::SynthOptions so;
+  so.width = 120;
+  so.height = 90;
+  so.shake.blur_px = 30;
+  so.shake.seed = 1;
+  so.camera = Calibration{0.72 * 120, 0.72 * 120, 59.5, 44.5, {-0.3, 0.08, 0, 0}};
+  synth::writeObservation(synth::makePreset("four_layers", {}), so, dir / "wide");
+  std::filesystem::remove(dir / "wide/calib.txt");
+  const Observation wide = loadObservation(dir / "wide");
+  const CalibratedMotion lens =
+      calibrateFromLatentFrames(wide, wide.camera.withSize(120, 90), wide.contrast);
+  ASSERT_TRUE(lens.estimated);
+  EXPECT_TRUE(lens.motion.pixel_depth);
+  const ExposureMotion through = motionFromLatentFrames(wide, lens.camera, wide.contrast);
+  EXPECT_EQ(lens.motion.residual_pixels_px, through.residual_pixels_px);
+  ASSERT_EQ(lens.motion.poses.size(), through.poses.size());
+  for (size_t k = 0; k < through.poses.size(); ++k) {
+    const SE3 &a = lens.motion.poses[k].pose, &b = through.poses[k].pose;
+    EXPECT_TRUE(a.translation() == b.translation() &&
+                a.rotation().coeffs() == b.rotation().coeffs())
+        << "pose " << k;
+  }
 }
 
 // A DAVIS pixel's ON and OFF thresholds differ from the nominal C by 10-20% each: a pixel that

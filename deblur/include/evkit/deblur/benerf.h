@@ -335,9 +335,10 @@ struct ExposureMotion {
   double repeated_share = -1;
   // With pixel_depth, the same refinement where each pixel whose own flows settle nothing next to a
   // depth edge takes the nearest depth within 8 px (the occluding side's) instead of the tiles'
-  // (which ramp from one side's depth to the other's: no surface's); present where it differs and
-  // its tracks' residual passes the same bar as the poses'. Which of the two the data favour is
-  // for the caller to judge (the pixel grid: by its loss on EDI's mid frame).
+  // (which ramp from one side's depth to the other's: no surface's); present where the depths'
+  // offset was chosen, it differs and its tracks' residual passes the same bar as the poses'. Which
+  // of the two the data favour is for the caller to judge (the pixel grid: by its loss on EDI's mid
+  // frame).
   struct NearEdges {
     std::vector<StampedPose> poses;
     cv::Mat inverse_depth;
@@ -360,7 +361,8 @@ inline constexpr float kRepeatCorrelation = 0.9f;
 double repeatedTextureShare(const cv::Mat& image8, std::span<const Eigen::Vector2d> points);
 // choose_depth_offset false: the depths' common offset is left where the alternation of motions and
 // depths put it (the image motion nearly alike, the split between rotation and translation less
-// right; about 0.5 s less), for registrations that are only scored. `intervals`: the exposure is
+// right; about 0.5 s less), and no near sides' alternative (ExposureMotion::near_edges) is made,
+// for registrations that are only scored. `intervals`: the exposure is
 // cut into that many (even, 2-64), EDI's latent frame is made at each end and the motion
 // registered there: kScoredIntervals (the default, half the cost) for the contrast's search and the
 // first registration, kTrajectoryIntervals where those nine poses are too few for the trajectory.
