@@ -869,9 +869,9 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
   // with kUnlessRepeated up to kMostMisfitPx too unless the texture repeats within the flow's
   // reach, where a flow locks onto a repeat with a bias that the per-pixel depth absorbs into a
   // misfit of about a pixel (BENCHMARKS.md, "What the registration's misfit measures").
-  const auto explains = [&](double residual_px) {
+  const auto explains = [&](double residual_px, MisfitBar misfit_bar) {
     if (residual_px <= 1.0) return true;
-    if (bar != MisfitBar::kUnlessRepeated || !(residual_px <= kMostMisfitPx)) return false;
+    if (misfit_bar != MisfitBar::kUnlessRepeated || !(residual_px <= kMostMisfitPx)) return false;
     if (!points.repeated) {
       std::vector<Eigen::Vector2d> at;
       for (size_t i = 0; i < tracks.size(); i += kRepeatSampleEvery) at.push_back(tracks[i].pixel);
@@ -880,7 +880,7 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
     m.repeated_share = *points.repeated;
     return *points.repeated < kMostRepeatedShare;
   };
-  if (!explains(chosen.residual_px)) {
+  if (!explains(chosen.residual_px, bar)) {
     m.inverse_depth = cv::Mat();
     return m;
   }
@@ -893,9 +893,11 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
     return poses;
   };
   m.poses = posesOf(chosen);
-  // The near sides' alternative where its tracks pass the same bar (the points near an occluding
-  // edge whose flows failed take the near side's depth there too, and misfit more).
-  if (near_edges && explains(near_edges->residual_px))
+  // The near sides' alternative where its tracks pass the bar of kUnlessRepeated, whatever the
+  // poses' (the points near an occluding edge whose flows failed take the near side's depth there
+  // too, and misfit more; with the same c and the same tracks, that is not the sign of a wrong c
+  // that kOnePixel watches for).
+  if (near_edges && explains(near_edges->residual_px, MisfitBar::kUnlessRepeated))
     m.near_edges = {posesOf(*near_edges), near_edges_map, near_edges->residual_px};
   return m;
 }

@@ -122,6 +122,7 @@ struct Start {
   bool camera_estimated = false;  // `camera` replaces the observation's assumed one
   bool contrast_given = false;    // by the settings or contrast.txt, not estimated
   BlurMeasurement measured;       // EDI's pass: the blur length and, without thresholds, its search
+  bool registered_away = false;   // the motion registered at a c away from EDI's searched one
 };
 
 // The registration's bar on its misfit: beyond a pixel only with the thresholds known (MisfitBar).
@@ -151,7 +152,7 @@ void reportMotion(const ExposureMotion& motion, DeblurResult& result) {
 }
 
 Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& result) {
-  Start s{given, given.virtual_views, 0, {}, obs.camera, false, false, {}};
+  Start s{given, given.virtual_views, 0, {}, obs.camera, false, false, {}, false};
   BenerfOptions& o = s.options;
   o.contrast = resolveContrast(o.contrast, obs);
   s.contrast_given = o.contrast.has_value();
@@ -194,7 +195,8 @@ Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& 
           s.measured, s.motion,
           [&](const Contrast& c) { return motionFromLatentFrames(obs, camera, c, o.log); },
           &registered_c);
-      if (registered_c > 0) result.parameters["contrast_registered"] = registered_c;
+      s.registered_away = registered_c > 0;
+      if (s.registered_away) result.parameters["contrast_registered"] = registered_c;
     }
     reportMotion(s.motion, result);
     result.timings_s["registration"] = secondsSince(registration_start);
@@ -587,8 +589,10 @@ HeldOutError imageMotionError(const PinholeCamera& camera) {
 // motion and the blurry frame itself explain the blur), which happens on smooth or weakly textured
 // scenes, and the hash field with L2-normalised events, which need no c, does better. It declines
 // too where it would keep its start (EDI's frame) at a blur of kHashBlur or more.
+// `search_contrast`: without thresholds, find c as above; else take the options' (given, or EDI's
+// searched c).
 bool runPixelGrid(const Observation& given, const DeblurRequest& request, const Start& s,
-                  Clock::time_point start, DeblurResult& result) {
+                  bool search_contrast, Clock::time_point start, DeblurResult& result) {
   const BenerfOptions& o = s.options;
   const PinholeCamera camera =
       given.camera.withSize(given.blurry.image.cols, given.blurry.image.rows);
@@ -629,7 +633,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   // Without thresholds: the scale that the registered motion explains best, refined by short
   // solves of the grid, and the motion registered between EDI's frames again at the c found.
   Contrast contrast;
-  if (s.contrast_given) {
+  if (!search_contrast) {
     contrast = *o.contrast;
   } else {
     const auto search_start = Clock::now();
@@ -872,11 +876,27 @@ DeblurResult BenerfDeblurrer::run(const Observation& given, const DeblurRequest&
     throw Error(
         "benerf: checkpoint and resume are for field=hash and field=mlp (the pixel grid is solved "
         "in one go)");
-  if (o.field == BenerfOptions::FieldKind::kPixels && !s.motion.poses.empty() &&
-      runPixelGrid(obs, req, s, start, result)) {
-    result.parameters["representation_pixels"] = 1;
-    result.timings_s["total"] = secondsSince(start);
-    return result;
+  if (o.field == BenerfOptions::FieldKind::kPixels && !s.motion.poses.empty()) {
+    bool grid = runPixelGrid(obs, req, s, !s.contrast_given, start, result);
+    // Without thresholds, where the grid declined at the c that it found, once more at EDI's
+    // searched c where that search landed inside its range (the motion was registered there): on
+    // smooth or dark scenes with noisy events the grid's own criteria fall towards small c, where
+    // the events' noise weighs least and the blur barely tells (BENCHMARKS.md, "Where the grid
+    // declines its own c").
+    if (!grid && !s.contrast_given && s.measured.searched && s.measured.inside &&
+        !s.registered_away) {
+      Start at_edi = s;
+      at_edi.options.contrast = Contrast{s.measured.c_on, s.measured.c_off};
+      result.parameters.erase("start_to_hash");
+      result.parameters["contrast_edi_retried"] = 1;
+      result.parameters["contrast_estimated"] = s.measured.c_on;
+      grid = runPixelGrid(obs, req, at_edi, false, start, result);
+    }
+    if (grid) {
+      result.parameters["representation_pixels"] = 1;
+      result.timings_s["total"] = secondsSince(start);
+      return result;
+    }
   }
   if (o.field == BenerfOptions::FieldKind::kPixels) {
     s.options.field = BenerfOptions::FieldKind::kHash;

@@ -336,7 +336,8 @@ struct ExposureMotion {
   // With pixel_depth, the same refinement where each pixel whose own flows settle nothing next to a
   // depth edge takes the nearest depth within 8 px (the occluding side's) instead of the tiles'
   // (which ramp from one side's depth to the other's: no surface's); present where the depths'
-  // offset was chosen, it differs and its tracks' residual passes the same bar as the poses'. Which
+  // offset was chosen, it differs and its tracks' residual passes kUnlessRepeated's bar (with
+  // either bar for the poses: its extra misfit is its own, at the pixels whose flows failed). Which
   // of the two the data favour is for the caller to judge (the pixel grid: by its loss on EDI's mid
   // frame).
   struct NearEdges {
