@@ -1849,6 +1849,21 @@ TEST(Benerf, PixelGridSmoothsTheChromaTheEventsDoNotSee) {
   EXPECT_GT(grey[1], grey[0]) << grey[0] << " -> " << grey[1] << " dB";
 }
 
+// `preset` at 120 x 90 with 30 px of blur through a wide lens (fx 0.72 width, k1 -0.3, k2 0.08),
+// its calib.txt removed.
+Observation throughAWideLens(const std::string& preset) {
+  ScratchDir dir;
+  synth::SynthOptions so;
+  so.width = 120;
+  so.height = 90;
+  so.shake.blur_px = 30;
+  so.shake.seed = 1;
+  so.camera = Calibration{0.72 * 120, 0.72 * 120, 59.5, 44.5, {-0.3, 0.08, 0, 0}};
+  synth::writeObservation(synth::makePreset(preset, {}), so, dir / "wide");
+  std::filesystem::remove(dir / "wide/calib.txt");
+  return loadObservation(dir / "wide");
+}
+
 // Without a calibration file the camera is assumed (fx = 0.9 width, no distortion). Seen through
 // a wide lens with barrel distortion (fx = 0.72 width, k1 = -0.3, k2 = 0.08, as a DAVIS346 with a
 // short lens), a rotation moves the image's corners less than its centre, which no rigid motion of
@@ -1858,16 +1873,7 @@ TEST(Benerf, PixelGridSmoothsTheChromaTheEventsDoNotSee) {
 // photographs at 346 x 260, +0.4 dB; BENCHMARKS.md, "Without a calibration"). A pinhole camera at
 // the assumed focal length is kept (no k1 takes away 5% of its residual).
 TEST(Benerf, WithoutACalibrationTheGridEstimatesTheLensDistortion) {
-  ScratchDir dir;
-  synth::SynthOptions so;
-  so.width = 120;
-  so.height = 90;
-  so.shake.blur_px = 30;
-  so.shake.seed = 1;
-  so.camera = Calibration{0.72 * 120, 0.72 * 120, 59.5, 44.5, {-0.3, 0.08, 0, 0}};
-  synth::writeObservation(synth::makePreset("planes", {}), so, dir / "wide");
-  std::filesystem::remove(dir / "wide/calib.txt");
-  const Observation wide = loadObservation(dir / "wide");
+  const Observation wide = throughAWideLens("planes");
   ASSERT_TRUE(wide.camera_assumed);
   ASSERT_TRUE(wide.camera.distortion.empty());
   const nerf::PinholeCamera assumed = wide.camera.withSize(120, 90);
@@ -1899,16 +1905,7 @@ TEST(Benerf, WithoutACalibrationTheGridEstimatesTheLensDistortion) {
 TEST(Benerf, TheLensChosenIsRegisteredThroughEachPixelsDepth) {
   if (!std::filesystem::exists(synth::defaultPhotoDir()))
     GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
-  ScratchDir dir;
-  synth::SynthOptions so;
-  so.width = 120;
-  so.height = 90;
-  so.shake.blur_px = 30;
-  so.shake.seed = 1;
-  so.camera = Calibration{0.72 * 120, 0.72 * 120, 59.5, 44.5, {-0.3, 0.08, 0, 0}};
-  synth::writeObservation(synth::makePreset("four_layers", {}), so, dir / "wide");
-  std::filesystem::remove(dir / "wide/calib.txt");
-  const Observation wide = loadObservation(dir / "wide");
+  const Observation wide = throughAWideLens("four_layers");
   const CalibratedMotion lens =
       calibrateFromLatentFrames(wide, wide.camera.withSize(120, 90), wide.contrast);
   ASSERT_TRUE(lens.estimated);
