@@ -321,6 +321,14 @@ TEST(Benerf, RotationFromEventsFollowsTheTrueMotion) {
   EXPECT_EQ(rotationFromEvents(quiet, camera, 6).norm(), 0.0);
 }
 
+// `o`'s shake: `blur_px` from `seed`, its rotation `rotation_share` of its image motion.
+void setShake(synth::SynthOptions& o, uint64_t seed, double blur_px, double rotation_share) {
+  o.shake.blur_px = blur_px;
+  o.shake.seed = seed;
+  o.shake.rotation_share = rotation_share;
+  o.shake.share_of_image_motion = true;
+}
+
 // A natural scene (python3-skimage's photographs) at half the suite's size, its shake's rotation
 // that share of the image motion, written with `o` and read back; none without the photographs.
 std::optional<Observation> halfSizeNatural(const std::string& scene,
@@ -331,10 +339,7 @@ std::optional<Observation> halfSizeNatural(const std::string& scene,
   ScratchDir dir;
   o.width = 174;
   o.height = 130;
-  o.shake.blur_px = blur_px;
-  o.shake.seed = seed;
-  o.shake.rotation_share = rotation_share;
-  o.shake.share_of_image_motion = true;
+  setShake(o, seed, blur_px, rotation_share);
   synth::writeObservation(synth::makePreset(scene, scene_options), o, dir / "obs");
   return loadObservation(dir / "obs");
 }
@@ -1258,10 +1263,7 @@ std::optional<Observation> heldOutNoisy(const std::filesystem::path& dir, const 
     o.width = 174;
     o.height = 130;
   }
-  o.shake.blur_px = blur_px;
-  o.shake.seed = seed;
-  o.shake.rotation_share = rotation_share;
-  o.shake.share_of_image_motion = true;
+  setShake(o, seed, blur_px, rotation_share);
   synth::SceneOptions scene;
   scene.seed = seed;
   scene.photo_dir = dir / "photos";
