@@ -10,9 +10,12 @@
 #include <utility>
 
 #include "evkit/deblur/edi.h"
+#include "evkit/deblur/metrics.h"
 #include "evkit/events/accumulate.h"
 #include "evkit/events/event_store.h"
 #include "evkit/events/filters.h"
+#include "evkit/nerf/camera.h"
+#include "pixel_grid_geometry.h"
 
 namespace evkit::benerf_detail {
 
@@ -26,7 +29,7 @@ double vertexShift(double a, double b, double c, double h) {
   return std::isfinite(curvature) && curvature > 0 ? 0.5 * h * (a - c) / curvature : 0.0;
 }
 
-// The views of the search for c's grids (contrastFromMotion, contrastFromSolves): the blur
+// The views of the search for c (contrastFromSolves' grids, contrastFromCounts' paths): the blur
 // integral coarser than the run's, alike for every c.
 constexpr int kSearchViews = 20;
 
@@ -82,50 +85,15 @@ StartFit startFit(const PixelGridProblem& problem, const std::vector<double>& x,
   return fit;
 }
 
-// The thresholds, when none are given, as the scale of `ratio` (c_off / c_on) whose EDI frame,
-// moved by the motion over the exposure and averaged, best re-makes the blurry frame (the grid's
-// blur term there). EDI's own search has no motion model and scores the frame's sharpness, which
-// too large a c also raises; with the motion the wrong c shows as ghosts that re-blur away from the
-// frame. A scan over [0.05, 1] in steps of 2^(1/3), then a parabola in log c through the least
-// and its neighbours; `at_end`: the least was at an end of the range.
-Contrast contrastFromMotion(const Observation& obs, const PinholeCamera& camera,
-                            const Trajectory& motion, const cv::Mat& inverse_depth,
-                            PixelGridOptions po, double ratio, bool* at_end) {
-  // The blur term does not depend on the thresholds: one problem serves every c, on at most
-  // kSearchViews views, and one EDI model every c's frame.
-  const double step = std::log(2.0) / 3;
-  po.max_views = std::max(po.min_views, kSearchViews);
-  po.occlusion = false;  // its blur term is a score between c's, not the image
-  const PixelGridProblem problem(obs, camera, motion, inverse_depth, Contrast{1, ratio}, po);
-  const Frame& blurry = obs.blurry;
-  const EdiModel edi(obs.events.view(), blurry.image.cols, blurry.image.rows,
-                     blurry.exposure_start_us, blurry.exposure_end_us);
-  EdiOptions edi_options;
-  edi_options.use_observation_contrast = false;
-  std::vector<double> logs, terms;
-  for (double l = std::log(0.05); l <= std::log(1.0) + 1e-9; l += step) {
-    const double c = std::exp(l);
-    PixelGridProblem::Terms t;
-    const cv::Mat frame = edi.latent(blurry.image, blurry.midExposure(), c, c * ratio, edi_options);
-    problem.evaluate(problem.start(frame), nullptr, &t);
-    logs.push_back(l);
-    terms.push_back(t.blur);
-  }
-  const size_t best =
-      static_cast<size_t>(std::min_element(terms.begin(), terms.end()) - terms.begin());
-  double l = logs[best];
-  *at_end = best == 0 || best + 1 == logs.size();
-  if (best > 0 && best + 1 < logs.size())
-    l += vertexShift(terms[best - 1], terms[best], terms[best + 1], step);
-  return {std::exp(l), std::exp(l) * ratio};
-}
-
-// The thresholds, when none are given, refined from `c0` (contrastFromMotion's) by the grid itself:
-// the scale of `ratio` at which the image, solved for a few steps on the motion registered at that
-// scale, best re-makes the blurry frame. At a wrong c the events ask the image for log changes
-// that the blur does not show, so the solved image re-blurs away from the frame. Each candidate
-// registers its own motion: on one motion registered at a c that is too low (where
-// contrastFromMotion's EDI frame is biased by a poor motion), the solves are biased low as well.
+// The thresholds, when none are given, refined from `c0` (contrastFromCounts') by the grid itself:
+// the scale of `ratio` within `band` of c0 at which the image, solved for a few steps on the motion
+// registered at that scale, best re-makes the blurry frame. At a wrong c the events ask the image
+// for log changes that the blur does not show, so the solved image re-blurs away from the frame.
+// Each candidate registers its own motion: on one motion registered at a c that is too low, the
+// solves are biased low as well. The band holds the walk where its misfit falls towards small c
+// without a least (smooth content with noisy events: the events' noise weighs least at a small c,
+// and smooth content blurred looks much like itself; BENCHMARKS.md, "The thresholds from the
+// events' counts"); within it the walk's sharp least refines the counts' c, which is up to 20% off.
 // The candidates' registrations leave the depths' offset unchosen (only their image motion is
 // scored). Each pixel's share of the misfit counts as many times as the pixel saw events over the
 // exposure: a pixel that the motion barely moves fires a few, each up to a threshold off what it
@@ -142,10 +110,10 @@ Contrast contrastFromMotion(const Observation& obs, const PinholeCamera& camera,
 SolvedContrast contrastFromSolves(
     const Observation& given, const PinholeCamera& camera,
     const std::function<Trajectory(const std::vector<StampedPose>&)>& fit, PixelGridOptions po,
-    double ratio, double c0, const BenerfOptions& o, DeblurResult& result) {
-  // Ten L-BFGS steps (five left nat_text_coins_blur60 at contrastFromMotion's 0.164 where the truth
-  // is 0.2) without the motion's refinement (which did not move the estimate), on at most
-  // kSearchViews views.
+    double ratio, double c0, double band, const BenerfOptions& o, DeblurResult& result) {
+  // Ten L-BFGS steps (five left nat_text_coins_blur60 at a start of 0.164 where the truth is 0.2)
+  // without the motion's refinement (which did not move the estimate), on at most kSearchViews
+  // views.
   constexpr int kSteps = 10;
   po.max_views = std::max(po.min_views, kSearchViews);
   // The short solves read the events as the log level, not as the sensor's reference level that
@@ -182,7 +150,9 @@ SolvedContrast contrastFromSolves(
         events > 0 ? counts.dot(problem.blurResiduals(x)) / (events * channels) : terms.blur;
     return std::log(std::max(misfit, 1e-30));
   };
-  const double lo = std::log(0.05), hi = std::log(1.0), h = std::log(2.0) / 6;
+  const double lo = std::log(kLeastContrast), hi = std::log(kMostContrast), h = std::log(2.0) / 6;
+  // The walk stays within `band` of c0 (in log c) and inside the range.
+  const double below = std::max(lo, std::log(c0) - band), above = std::min(hi, std::log(c0) + band);
   // Three points in log c, h apart, the middle one the least seen: walk up from c0 while the
   // misfit falls, else down.
   double l = std::clamp(std::log(c0), lo + h, hi - h);
@@ -193,7 +163,7 @@ SolvedContrast contrastFromSolves(
       f[0] = f[1];
       f[1] = f[2];
       l += h;
-      f[2] = l + h <= hi + 1e-9 ? misfit(l + h) : none;
+      f[2] = l + h <= above + 1e-9 ? misfit(l + h) : none;
     } while (f[2] < f[1]);
   } else {
     f[0] = misfit(l - h);
@@ -201,7 +171,7 @@ SolvedContrast contrastFromSolves(
       f[2] = f[1];
       f[1] = f[0];
       l -= h;
-      f[0] = l - h >= lo - 1e-9 ? misfit(l - h) : none;
+      f[0] = l - h >= below - 1e-9 ? misfit(l - h) : none;
     }
   }
   SolvedContrast out;
@@ -217,3 +187,77 @@ SolvedContrast contrastFromSolves(
 }
 
 }  // namespace evkit::benerf_detail
+
+namespace evkit {
+
+CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& camera,
+                                   const Trajectory& motion, const cv::Mat& inverse_depth,
+                                   double ratio, const LogMapping& log) {
+  // The path at kSearchViews + 1 times from the exposure's start to its end, both included.
+  constexpr int kTimes = benerf_detail::kSearchViews + 1;
+  const Frame& blurry = obs.blurry;
+  const int W = blurry.image.cols, H = blurry.image.rows;
+  const int64_t t0 = blurry.exposure_start_us, t1 = blurry.exposure_end_us;
+  EventSpan span = obs.events.sliceTime(t0, t1);
+  span.sensor = {W, H};
+  const PolarityCounts counts = accumulateCounts(span);
+  cv::Mat net;
+  cv::addWeighted(counts.on, 1.0, counts.off, -ratio, 0.0, net, CV_64F);
+  cv::Mat grey;
+  toGrey(blurry.image).convertTo(grey, CV_64F);
+  cv::Mat log_blurry(H, W, CV_64F);
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x)
+      log_blurry.at<double>(y, x) = log.logOf(std::max(0.0, grey.at<double>(y, x)));
+  std::vector<Matrix3> rotations(kTimes);
+  std::vector<Vector3> translations(kTimes);
+  for (int k = 0; k < kTimes; ++k) {
+    const SE3 pose = motion.poseAt(t0 + (t1 - t0) * k / (kTimes - 1));
+    rotations[static_cast<size_t>(k)] = pose.rotationMatrix();
+    translations[static_cast<size_t>(k)] = pose.translation();
+  }
+  // Bilinear within [0, W - 1] x [0, H - 1], which the paths kept stay inside.
+  const auto at = [](const cv::Mat& image, const Eigen::Vector2d& q) {
+    const int x0 = std::min(static_cast<int>(q.x()), image.cols - 2),
+              y0 = std::min(static_cast<int>(q.y()), image.rows - 2);
+    const double ax = q.x() - x0, ay = q.y() - y0;
+    const double* a = image.ptr<double>(y0);
+    const double* b = image.ptr<double>(y0 + 1);
+    return (1 - ay) * ((1 - ax) * a[x0] + ax * a[x0 + 1]) +
+           ay * ((1 - ax) * b[x0] + ax * b[x0 + 1]);
+  };
+  double n = 0, sa = 0, sb = 0, saa = 0, sbb = 0, sab = 0;
+#pragma omp parallel for reduction(+ : n, sa, sb, saa, sbb, sab) schedule(static)
+  for (int y = 0; y < H; ++y) {
+    std::vector<Eigen::Vector2d> path(kTimes);
+    for (int x = 0; x < W; ++x) {
+      const Vector3 d = nerf::pixelDirection(camera, x, y);
+      bool inside = true;
+      for (int k = 0; k < kTimes && inside; ++k) {
+        const Eigen::Vector2d q = pixel_grid_detail::reproject(
+            camera, inverse_depth, x, y, rotations[static_cast<size_t>(k)] * d,
+            translations[static_cast<size_t>(k)], nullptr);
+        inside = q.x() >= 0 && q.x() <= W - 1 && q.y() >= 0 && q.y() <= H - 1;
+        path[static_cast<size_t>(k)] = q;
+      }
+      if (!inside) continue;
+      double counted = 0;
+      for (const Eigen::Vector2d& q : path) counted += at(net, q);
+      counted /= kTimes;
+      const double change = at(log_blurry, path.back()) - at(log_blurry, path.front());
+      n += 1;
+      sa += change;
+      sb += counted;
+      saa += change * change;
+      sbb += counted * counted;
+      sab += change * counted;
+    }
+  }
+  CountedContrast out;
+  out.c = sab > 0 ? saa / sab : std::numeric_limits<double>::quiet_NaN();
+  const double va = saa - sa * sa / std::max(n, 1.0), vb = sbb - sb * sb / std::max(n, 1.0);
+  out.correlation = va > 0 && vb > 0 ? (sab - sa * sb / n) / std::sqrt(va * vb) : 0.0;
+  return out;
+}
+
+}  // namespace evkit

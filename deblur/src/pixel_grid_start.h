@@ -3,6 +3,7 @@
 // it.
 #pragma once
 
+#include <cmath>
 #include <functional>
 #include <opencv2/core.hpp>
 #include <vector>
@@ -34,15 +35,15 @@ struct StartFit {
 StartFit startFit(const PixelGridProblem& problem, const std::vector<double>& x,
                   const Frame& blurry);
 
-// The thresholds, when none are given, as the scale of `ratio` (c_off / c_on) whose EDI frame,
-// moved by the motion over the exposure and averaged, best re-makes the blurry frame (the grid's
-// blur term there); `at_end`: the least was at an end of the scan's range, [0.05, 1].
-Contrast contrastFromMotion(const Observation& obs, const PinholeCamera& camera,
-                            const Trajectory& motion, const cv::Mat& inverse_depth,
-                            PixelGridOptions po, double ratio, bool* at_end);
-
+// The range of c searched without thresholds: a c found at an end of it is declined.
+inline constexpr double kLeastContrast = 0.05, kMostContrast = 1.0;
+// The short solves stay within this of contrastFromCounts' c in log c, 2^(1/3): the counts' c was
+// 0.83-1.20 of the truth on 27 frames of photographs (BENCHMARKS.md, "The thresholds from the
+// events' counts").
+inline const double kCountsBand = std::log(2.0) / 3;
 // The thresholds refined from `c0` by short solves of the grid, each on the motion registered at
-// its own c: the c at which the solved image re-blurs closest to the frame.
+// its own c: the c within `band` of c0 (in log c) at which the solved image re-blurs closest to
+// the frame.
 struct SolvedContrast {
   Contrast contrast;
   bool at_end = false;  // the least at an end of [0.05, 1]
@@ -50,6 +51,6 @@ struct SolvedContrast {
 SolvedContrast contrastFromSolves(
     const Observation& given, const PinholeCamera& camera,
     const std::function<Trajectory(const std::vector<StampedPose>&)>& fit, PixelGridOptions po,
-    double ratio, double c0, const BenerfOptions& o, DeblurResult& result);
+    double ratio, double c0, double band, const BenerfOptions& o, DeblurResult& result);
 
 }  // namespace evkit::benerf_detail

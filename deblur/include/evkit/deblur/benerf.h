@@ -394,6 +394,22 @@ ExposureMotion registerAwayFromSearch(
     const BlurMeasurement& measured, const ExposureMotion& at_searched,
     const std::function<ExposureMotion(const Contrast&)>& registerAt, double* registered_c);
 
+// The thresholds, when none are given, from the events' counts and the blurry frame alone, along
+// the motion. Over the exposure a pixel's net count n = N_on - ratio N_off is its log change in
+// units of c_on. Averaged along each pixel's path (as the blur averages the scene), the count image
+// equals, where the image motion is locally uniform, the log of the blurry frame at the path's end
+// less that at its start, over c (to first order in the log's curvature over the path). The
+// least-squares slope of the averaged counts on that difference is 1 / c: the events' noise is in
+// the counts, the regressand, and does not bias it, where it biases the short solves' misfit
+// towards low c wherever it is a good share of the events (BENCHMARKS.md, "The thresholds from
+// the events' counts"). `correlation`: of the two over the pixels whose paths stay inside the
+// frame; c is NaN where they do not rise together.
+struct CountedContrast {
+  double c = 0, correlation = 0;
+};
+CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& camera,
+                                   const Trajectory& motion, const cv::Mat& inverse_depth,
+                                   double ratio, const LogMapping& log);
 // The camera where no calibration was given: the radial distortion k1 (OpenCV's model, k2 = p1 =
 // p2 = 0) that lets the rigid camera explain the points tracked between EDI's latent frames best
 // (the per-tile depth model's RMS residual), over the barrel ladder below, and the motion
