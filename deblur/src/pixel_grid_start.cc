@@ -198,6 +198,8 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
   const Frame& blurry = obs.blurry;
   const int W = blurry.image.cols, H = blurry.image.rows;
   const int64_t t0 = blurry.exposure_start_us, t1 = blurry.exposure_end_us;
+  CountedContrast out{std::numeric_limits<double>::quiet_NaN(), 0.0};
+  if (W < 2 || H < 2) return out;  // no bilinear stencil fits
   EventSpan span = obs.events.sliceTime(t0, t1);
   span.sensor = {W, H};
   const PolarityCounts counts = accumulateCounts(span);
@@ -226,10 +228,12 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
     return (1 - ay) * ((1 - ax) * a[x0] + ax * a[x0 + 1]) +
            ay * ((1 - ax) * b[x0] + ax * b[x0 + 1]);
   };
-  double n = 0, sa = 0, sb = 0, saa = 0, sbb = 0, sab = 0;
-#pragma omp parallel for reduction(+ : n, sa, sb, saa, sbb, sab) schedule(static)
+  // Each row's sums, then the rows' in order: the same bits at any thread count.
+  std::vector<std::array<double, 6>> rows(static_cast<size_t>(H), std::array<double, 6>{});
+#pragma omp parallel for schedule(static)
   for (int y = 0; y < H; ++y) {
     std::vector<Eigen::Vector2d> path(kTimes);
+    std::array<double, 6>& row = rows[static_cast<size_t>(y)];
     for (int x = 0; x < W; ++x) {
       const Vector3 d = nerf::pixelDirection(camera, x, y);
       bool inside = true;
@@ -245,16 +249,24 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
       for (const Eigen::Vector2d& q : path) counted += at(net, q);
       counted /= kTimes;
       const double change = at(log_blurry, path.back()) - at(log_blurry, path.front());
-      n += 1;
-      sa += change;
-      sb += counted;
-      saa += change * change;
-      sbb += counted * counted;
-      sab += change * counted;
+      row[0] += 1;
+      row[1] += change;
+      row[2] += counted;
+      row[3] += change * change;
+      row[4] += counted * counted;
+      row[5] += change * counted;
     }
   }
-  CountedContrast out;
-  out.c = sab > 0 ? saa / sab : std::numeric_limits<double>::quiet_NaN();
+  double n = 0, sa = 0, sb = 0, saa = 0, sbb = 0, sab = 0;
+  for (const std::array<double, 6>& row : rows) {
+    n += row[0];
+    sa += row[1];
+    sb += row[2];
+    saa += row[3];
+    sbb += row[4];
+    sab += row[5];
+  }
+  if (sab > 0) out.c = saa / sab;
   const double va = saa - sa * sa / std::max(n, 1.0), vb = sbb - sb * sb / std::max(n, 1.0);
   out.correlation = va > 0 && vb > 0 ? (sab - sa * sb / n) / std::sqrt(va * vb) : 0.0;
   return out;

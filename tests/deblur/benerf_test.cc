@@ -1517,7 +1517,15 @@ TEST(Benerf, TheThresholdsFromTheCountsAreNotBiasedByNoiseEvents) {
   ASSERT_FALSE(m.poses.empty());
   const int64_t t0 = obs.blurry.exposure_start_us, t1 = obs.blurry.exposure_end_us;
   const Trajectory motion = fitTrajectory(TrajectoryKind::kCubicSE3, 4, t0, t1, m.poses);
-  const CountedContrast clean = contrastFromCounts(obs, camera, motion, m.inverse_depth, 1.0, {});
+  CountedContrast clean;
+  {
+    const Threads two(2);
+    clean = contrastFromCounts(obs, camera, motion, m.inverse_depth, 1.0, {});
+  }
+  {
+    const Threads one(1);  // the same bits on one thread as on two
+    EXPECT_EQ(contrastFromCounts(obs, camera, motion, m.inverse_depth, 1.0, {}).c, clean.c);
+  }
   std::mt19937 rng(7);
   std::uniform_int_distribution<int64_t> when(t0, t1 - 1);
   std::uniform_int_distribution<int> column(0, 173), row(0, 129), sign(0, 1);
