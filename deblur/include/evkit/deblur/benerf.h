@@ -398,12 +398,17 @@ ExposureMotion registerAwayFromSearch(
 // the motion. Over the exposure a pixel's net count n = N_on - ratio N_off is its log change in
 // units of c_on. Averaged along each pixel's path (as the blur averages the scene), the count image
 // equals, where the image motion is locally uniform, the log of the blurry frame at the path's end
-// less that at its start, over c (to first order in the log's curvature over the path). The
-// least-squares slope of the averaged counts on that difference is 1 / c: the events' noise is in
-// the counts, the regressand, and does not bias it, where it biases the short solves' misfit
-// towards low c wherever it is a good share of the events (BENCHMARKS.md, "The thresholds from
-// the events' counts"). `correlation`: of the two over the pixels whose paths stay inside the
-// frame; c is NaN where they do not rise together.
+// less that at its start, over c, to first order in the log's curvature along the path: the
+// least-squares slope of the one on the other is 1 / c, the start. In linear intensity the blur's
+// identity holds without that approximation: EDI's frames at c change over the exposure by
+// L_start (exp(c n) - 1) at each pixel, and that change averaged along each path is the blurry
+// frame at the path's end less at its start; the slope of the averaged change over c on that
+// difference (each pixel's relative to its own blurry value) is 1 / c, a fixed point from the
+// start. In both the events' noise is in the regressand and does not bias the slope, where it
+// biases the short solves' misfit towards small c wherever it is a good share of the events
+// (BENCHMARKS.md, "The thresholds from the events' counts"). `correlation`: of the counts and the
+// log change, over the pixels whose paths stay inside the frame; c is NaN where they do not rise
+// together.
 struct CountedContrast {
   double c = 0, correlation = 0;
 };
