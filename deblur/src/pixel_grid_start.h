@@ -38,8 +38,8 @@ StartFit startFit(const PixelGridProblem& problem, const std::vector<double>& x,
 // The range of c searched without thresholds: a c found at an end of it is declined.
 inline constexpr double kLeastContrast = 0.05, kMostContrast = 1.0;
 // The short solves stay within this of contrastFromCounts' c in log c, 2^(1/3): the counts' c was
-// 0.83-1.20 of the truth on 27 frames of photographs (BENCHMARKS.md, "The thresholds from the
-// events' counts").
+// 0.81-1.16 of the truth on 51 of 52 frames of photographs (BENCHMARKS.md, "The thresholds from
+// the events' counts").
 inline const double kCountsBand = std::log(2.0) / 3;
 // The thresholds refined from `c0` by short solves of the grid, each on the motion registered at
 // its own c: the c within `band` of c0 (in log c) at which the solved image re-blurs closest to
