@@ -200,11 +200,30 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
   const int64_t t0 = blurry.exposure_start_us, t1 = blurry.exposure_end_us;
   CountedContrast out{std::numeric_limits<double>::quiet_NaN(), 0.0};
   if (W < 2 || H < 2) return out;  // no bilinear stencil fits
-  EventSpan span = obs.events.sliceTime(t0, t1);
-  span.sensor = {W, H};
-  const PolarityCounts counts = accumulateCounts(span);
-  cv::Mat net;
-  cv::addWeighted(counts.on, 1.0, counts.off, -ratio, 0.0, net, CV_64F);
+  // Each pixel's net count (ON less `ratio` OFF) from the exposure's start to each of the path's
+  // times: the ON and OFF events counted in each interval between them, added up; the last is the
+  // exposure's net count, and the others make EDI's frames for the refinement below.
+  const EventSpan span = obs.events.sliceTime(t0, t1);
+  std::vector<cv::Mat> on(kTimes), off(kTimes);
+  for (int k = 0; k < kTimes; ++k) {
+    on[static_cast<size_t>(k)] = cv::Mat::zeros(H, W, CV_64F);
+    off[static_cast<size_t>(k)] = cv::Mat::zeros(H, W, CV_64F);
+  }
+  for (size_t i = 0; i < span.size(); ++i) {
+    const int k = 1 + static_cast<int>((span.t[i] - t0) * (kTimes - 1) / (t1 - t0));
+    if (k < 1 || k >= kTimes || span.x[i] >= W || span.y[i] >= H) continue;
+    (span.p[i] > 0 ? on : off)[static_cast<size_t>(k)].at<double>(span.y[i], span.x[i]) += 1;
+  }
+  std::vector<cv::Mat> level(kTimes);
+  for (int k = 0; k < kTimes; ++k) {
+    const size_t i = static_cast<size_t>(k);
+    if (k > 0) {
+      on[i] += on[i - 1];
+      off[i] += off[i - 1];
+    }
+    cv::addWeighted(on[i], 1.0, off[i], -ratio, 0.0, level[i], CV_64F);
+  }
+  const cv::Mat& net = level.back();
   cv::Mat grey;
   toGrey(blurry.image).convertTo(grey, CV_64F);
   cv::Mat log_blurry(H, W, CV_64F);
@@ -311,16 +330,6 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
   // where bright content smears into dark (stars behind a rocket) the log's c came out at 0.29-0.30
   // for the truth's 0.2, along the true motion too (0.21 and 0.19 from the blur of the true frame's
   // log), and the fixed point at 0.22.
-  // The net count at each of the path's times (from the exposure's start), for EDI's frames.
-  std::vector<cv::Mat> level(kTimes);
-  for (cv::Mat& m : level) m = cv::Mat::zeros(H, W, CV_64F);
-  for (size_t i = 0; i < span.size(); ++i) {
-    const int k = 1 + static_cast<int>((span.t[i] - t0) * (kTimes - 1) / (t1 - t0));
-    if (k < 1 || k >= kTimes || span.x[i] >= W || span.y[i] >= H) continue;
-    level[static_cast<size_t>(k)].at<double>(span.y[i], span.x[i]) += span.p[i] > 0 ? 1.0 : -ratio;
-  }
-  for (int k = 1; k < kTimes; ++k)
-    level[static_cast<size_t>(k)] += level[static_cast<size_t>(k - 1)];
   cv::Mat linear(H, W, CV_64F);
   for (int y = 0; y < H; ++y)
     for (int x = 0; x < W; ++x) linear.at<double>(y, x) = std::exp(log_blurry.at<double>(y, x));
