@@ -201,29 +201,27 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
   CountedContrast out{std::numeric_limits<double>::quiet_NaN(), 0.0};
   if (W < 2 || H < 2) return out;  // no bilinear stencil fits
   // Each pixel's net count (ON less `ratio` OFF) from the exposure's start to each of the path's
-  // times: the ON and OFF events counted in each interval between them, added up; the last is the
-  // exposure's net count, and the others make EDI's frames for the refinement below.
+  // times, pixel by pixel (level[pixel * kTimes + k]): the events of each interval between them,
+  // then added up. The last is the exposure's net count, and the others make EDI's frames for the
+  // refinement below. In float: exact for counts under 2^24 where the ratio is 1, to seven digits
+  // otherwise; a 1280 x 720 frame's levels take 77 MB, where doubles for each time's ON, OFF and
+  // level took 464.
+  const size_t N = static_cast<size_t>(W) * H;
   const EventSpan span = obs.events.sliceTime(t0, t1);
-  std::vector<cv::Mat> on(kTimes), off(kTimes);
-  for (int k = 0; k < kTimes; ++k) {
-    on[static_cast<size_t>(k)] = cv::Mat::zeros(H, W, CV_64F);
-    off[static_cast<size_t>(k)] = cv::Mat::zeros(H, W, CV_64F);
-  }
+  std::vector<float> level(N * kTimes, 0.0f);
+  const float off_step = -static_cast<float>(ratio);
   for (size_t i = 0; i < span.size(); ++i) {
     const int k = 1 + static_cast<int>((span.t[i] - t0) * (kTimes - 1) / (t1 - t0));
     if (k < 1 || k >= kTimes || span.x[i] >= W || span.y[i] >= H) continue;
-    (span.p[i] > 0 ? on : off)[static_cast<size_t>(k)].at<double>(span.y[i], span.x[i]) += 1;
+    const size_t pixel = static_cast<size_t>(span.y[i]) * W + span.x[i];
+    level[pixel * kTimes + static_cast<size_t>(k)] += span.p[i] > 0 ? 1.0f : off_step;
   }
-  std::vector<cv::Mat> level(kTimes);
-  for (int k = 0; k < kTimes; ++k) {
-    const size_t i = static_cast<size_t>(k);
-    if (k > 0) {
-      on[i] += on[i - 1];
-      off[i] += off[i - 1];
-    }
-    cv::addWeighted(on[i], 1.0, off[i], -ratio, 0.0, level[i], CV_64F);
+  cv::Mat net(H, W, CV_64F);
+  for (size_t pixel = 0; pixel < N; ++pixel) {
+    float* levels = &level[pixel * kTimes];
+    for (int k = 1; k < kTimes; ++k) levels[k] += levels[k - 1];
+    net.at<double>(static_cast<int>(pixel / W), static_cast<int>(pixel % W)) = levels[kTimes - 1];
   }
-  const cv::Mat& net = level.back();
   cv::Mat grey;
   toGrey(blurry.image).convertTo(grey, CV_64F);
   cv::Mat log_blurry(H, W, CV_64F);
@@ -247,9 +245,10 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
     return (1 - ay) * ((1 - ax) * a[x0] + ax * a[x0 + 1]) +
            ay * ((1 - ax) * b[x0] + ax * b[x0 + 1]);
   };
-  // Each pixel's path on the mid image, where it stays inside the frame.
-  const size_t N = static_cast<size_t>(W) * H;
-  std::vector<Eigen::Vector2d> paths(N * kTimes);
+  // Each pixel's path on the mid image, where it stays inside the frame, as float offsets from the
+  // pixel (under 1e-4 px off at a path of 1,000 px): 155 MB at 1280 x 720, where the points in
+  // double took 310.
+  std::vector<Eigen::Vector2f> paths(N * kTimes);
   std::vector<uint8_t> inside(N, 0);
 #pragma omp parallel for schedule(static)
   for (int y = 0; y < H; ++y) {
@@ -262,7 +261,7 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
             camera, inverse_depth, x, y, rotations[static_cast<size_t>(k)] * d,
             translations[static_cast<size_t>(k)], nullptr);
         in = q.x() >= 0 && q.x() <= W - 1 && q.y() >= 0 && q.y() <= H - 1;
-        paths[pixel * kTimes + static_cast<size_t>(k)] = q;
+        paths[pixel * kTimes + static_cast<size_t>(k)] = (q - Eigen::Vector2d(x, y)).cast<float>();
       }
       inside[pixel] = in ? 1 : 0;
     }
@@ -281,11 +280,13 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
       for (int x = 0; x < W; ++x) {
         const size_t pixel = static_cast<size_t>(y) * W + x;
         if (!inside[pixel]) continue;
-        const Eigen::Vector2d* path = &paths[pixel * kTimes];
+        const Eigen::Vector2f* path = &paths[pixel * kTimes];
+        const Eigen::Vector2d here(x, y);
+        const auto point = [&](int k) { return here + path[k].cast<double>(); };
         double averaged = 0;
-        for (int k = 0; k < kTimes; ++k) averaged += at(along, path[k]);
+        for (int k = 0; k < kTimes; ++k) averaged += at(along, point(k));
         averaged /= kTimes;
-        double change = at(ends, path[kTimes - 1]) - at(ends, path[0]);
+        double change = at(ends, point(kTimes - 1)) - at(ends, point(0));
         if (!scale.empty()) {
           const double w = 1.0 / scale.at<double>(y, x);
           averaged *= w;
@@ -341,14 +342,13 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
 #pragma omp parallel for schedule(static)
     for (int y = 0; y < H; ++y)
       for (int x = 0; x < W; ++x) {
+        const float* levels = &level[(static_cast<size_t>(y) * W + x) * kTimes];
         double top = 0;
-        for (int k = 1; k < kTimes; ++k)
-          top = std::max(top, c * level[static_cast<size_t>(k)].at<double>(y, x));
+        for (int k = 1; k < kTimes; ++k) top = std::max(top, c * levels[k]);
         double mean = 0;
-        for (int k = 0; k < kTimes; ++k)
-          mean += std::exp(c * level[static_cast<size_t>(k)].at<double>(y, x) - top);
+        for (int k = 0; k < kTimes; ++k) mean += std::exp(c * levels[k] - top);
         mean /= kTimes;
-        const double end = c * level[kTimes - 1].at<double>(y, x);
+        const double end = c * levels[kTimes - 1];
         change.at<double>(y, x) =
             linear.at<double>(y, x) * (std::exp(end - top) - std::exp(-top)) / (mean * c);
       }
