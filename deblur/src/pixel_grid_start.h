@@ -44,12 +44,13 @@ inline const double kCountsBand = std::log(2.0) / 3;
 // How far the counts may follow the c that their motion was registered at before they are taken to
 // tell no c: the exponent s of counts ~ c_registered^s between a registration at c and one at 2c.
 // The count's fixed point then carries the counts' own error times 1 / (1 - s), four times at 3/4.
-// Measured on 52 frames of the suites and 6 smooth, noisy photographs at half size: at most 0.35
-// wherever a photograph or a texture is; 0.53 on a rocket before its backdrop at half size (85% of
-// the image motion from translation, registered at 0.39 and 0.77, where a motion registered at too
-// large a c moves the image too far: the grid 35.18 dB, the hash field 19.54); 0.98 on smooth
-// shading with noisy events (ground_blur15_noisy: 0.090 and 0.184, the grid at the count 6.2 dB
-// below the hash field). BENCHMARKS.md, "Whether the counts tell c".
+// Measured on the 53 frames of the suites and 6 smooth, noisy photographs at half size: at most
+// 0.35 wherever a photograph or a texture is; 0.53 on a rocket before its backdrop at half size
+// (85% of the image motion from translation, registered at 0.39 and 0.77, where a motion registered
+// at too large a c moves the image too far: the grid 35.18 dB, the hash field 19.54); 0.98 on
+// smooth shading with noisy events (ground_blur15_noisy: 0.090 along the motion registered at
+// 0.098, 0.178 along the one at 0.197; the grid at the count 6.2 dB below the hash field).
+// BENCHMARKS.md, "Whether the counts tell c".
 inline constexpr double kMostCountsFollow = 0.75;
 // The thresholds refined from `c0` by short solves of the grid, each on the motion registered at
 // its own c: the c within `band` of c0 (in log c) at which the solved image re-blurs closest to
