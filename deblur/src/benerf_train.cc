@@ -125,8 +125,7 @@ struct Start {
   bool camera_estimated = false;  // `camera` replaces the observation's assumed one
   bool contrast_given = false;    // by the settings or contrast.txt, not estimated
   BlurMeasurement measured;       // EDI's pass: the blur length and, without thresholds, its search
-  bool registered_away = false;   // the motion registered at a c away from EDI's searched one
-  double registered_c = 0;        // where registered away: the c it was registered at
+  double registered_away_c = 0;   // > 0: `motion` registered at this c, away from EDI's
 };
 
 // The registration's bar on its misfit: beyond a pixel only with the thresholds known (MisfitBar).
@@ -156,7 +155,7 @@ void reportMotion(const ExposureMotion& motion, DeblurResult& result) {
 }
 
 Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& result) {
-  Start s{given, given.virtual_views, 0, {}, obs.camera, false, false, {}, false};
+  Start s{given, given.virtual_views, 0, {}, obs.camera, false, false, {}, 0};
   BenerfOptions& o = s.options;
   o.contrast = resolveContrast(o.contrast, obs);
   s.contrast_given = o.contrast.has_value();
@@ -199,11 +198,8 @@ Start prepare(const Observation& obs, const BenerfOptions& given, DeblurResult& 
           s.measured, s.motion,
           [&](const Contrast& c) { return motionFromLatentFrames(obs, camera, c, o.log); },
           &registered_c);
-      s.registered_away = registered_c > 0;
-      if (s.registered_away) {
-        s.registered_c = registered_c;
-        result.parameters["contrast_registered"] = registered_c;
-      }
+      s.registered_away_c = registered_c;
+      if (registered_c > 0) result.parameters["contrast_registered"] = registered_c;
     }
     reportMotion(s.motion, result);
     result.timings_s["registration"] = secondsSince(registration_start);
@@ -653,20 +649,22 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     // 0.27 at 0.3, 0.29 at 0.4): registered once more at the count and counted again. Not until the
     // count settles: at a small c the motion shrinks with it (EDI's frames barely move), and on a
     // smooth cameraman the rounds ran down to 0.126 for the truth's 0.2 (39.19 dB against 46.73).
-    const auto counts = [&](const ExposureMotion& at) {
-      return contrastFromCounts(given, camera, fit(at.poses), at.inverse_depth, ratio, o.log);
+    const auto counts = [&](const ExposureMotion& at, const Trajectory& path) {
+      return contrastFromCounts(given, camera, path, at.inverse_depth, ratio, o.log);
     };
     const auto inRange = [](double c) { return c >= kLeastContrast && c <= kMostContrast; };
-    CountedContrast counted = counts(registered);
+    Trajectory counted_path = fit(registered.poses);  // of the motion the count was taken along
+    CountedContrast counted = counts(registered, counted_path);
     result.parameters["contrast_from_counts_searched"] = counted.c;
     if (!inRange(counted.c)) return false;
-    const double registered_c = s.registered_c > 0 ? s.registered_c : m.c_on;
+    const double registered_c = s.registered_away_c > 0 ? s.registered_away_c : m.c_on;
     double counted_c = registered_c;  // the c of the motion the count was taken along
     const ExposureMotion again =
         motionFromLatentFrames(given, camera, Contrast{counted.c, counted.c * ratio}, o.log, false);
     if (!again.poses.empty()) {
       counted_c = counted.c;
-      counted = counts(again);
+      counted_path = fit(again.poses);
+      counted = counts(again, counted_path);
     }
     result.parameters["contrast_from_counts"] = counted.c;
     result.parameters["contrast_counts_correlation"] = counted.correlation;
@@ -683,13 +681,13 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     // 0.211 along the motion registered at 0.2, 9.13 along the one at 0.4).
     const ExposureMotion& counted_motion = again.poses.empty() ? registered : again;
     const double counted_blur = PixelGridProblem::longestImagePath(
-        camera, fit(counted_motion.poses), counted_motion.inverse_depth, t0, t1);
+        camera, counted_path, counted_motion.inverse_depth, t0, t1);
     const ExposureMotion doubled =
         counted_blur < kHashBlur
             ? ExposureMotion{}
             : motionFromLatentFrames(given, camera, Contrast{2 * counted_c, 2 * counted_c * ratio},
                                      o.log, false);
-    const double doubled_count = doubled.poses.empty() ? 0 : counts(doubled).c;
+    const double doubled_count = doubled.poses.empty() ? 0 : counts(doubled, fit(doubled.poses)).c;
     if (inRange(doubled_count)) {
       const double follow = std::log2(doubled_count / counted.c);
       result.parameters["contrast_counts_follow"] = follow;
@@ -700,6 +698,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     result.parameters["contrast_at_range_end"] = found.at_end ? 1 : 0;
     if (found.at_end) return false;
     contrast = found.contrast;
+    result.parameters["contrast_estimated"] = contrast.on;
     ExposureMotion at_found = motionFromLatentFrames(given, camera, contrast, o.log);
     result.parameters["contrast_registered_at_estimate"] = at_found.poses.empty() ? 0 : 1;
     if (!at_found.poses.empty()) {
@@ -712,10 +711,8 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
       // hash field, which refines its own trajectory (hard_dark: registered away from EDI's 0.5 at
       // 0.125, the counts 0.21 for the truth's 0.2, and nothing registers there through its
       // repeating texture; the grid on the motion of 0.125 55.93 dB, the hash field 62.06).
-      result.parameters["contrast_estimated"] = contrast.on;
       return false;
     }
-    result.parameters["contrast_estimated"] = contrast.on;
     result.timings_s["contrast"] = secondsSince(search_start);
   }
   result.parameters["motion_from_frames"] = 1;
@@ -944,7 +941,7 @@ DeblurResult BenerfDeblurrer::run(const Observation& given, const DeblurRequest&
     // from EDI's c: registered there again at the bar of thresholds given, the motion misfit 1.33
     // px on a smooth scene at half size and the grid lost 1.6 dB to the hash field.
     if (!grid && !s.contrast_given && s.measured.searched && s.measured.inside &&
-        !s.registered_away) {
+        !(s.registered_away_c > 0)) {
       Start at_edi = s;
       at_edi.contrast_given = true;
       at_edi.options.contrast = Contrast{s.measured.c_on, s.measured.c_off};
