@@ -963,8 +963,10 @@ DeblurResult BenerfDeblurrer::run(const Observation& given, const DeblurRequest&
   // declines the registered motion was off (ground_blur15 without thresholds: 4.42 degrees and a
   // translation 12 times the truth's, for 2.03 degrees) and started the field 0.5-6.2 dB lower on
   // all ten frames (BENCHMARKS.md, "Where the grid declines, the hash field's start"). Where the
-  // motion is mostly translation a rotation is a poor start (a rocket before its backdrop at half
-  // size: 19.5 dB, 31.1 from its registered motion), but there the grid does not decline.
+  // motion is mostly translation a rotation is a poor start: a photograph not in the suites with
+  // 60% of its image motion from translation declines and would gain 1.1 dB from its registered
+  // motion, and a rocket before its backdrop at half size (which does not decline) 11.6 dB. Which
+  // start to take is not yet told from the data.
   if (o.field == BenerfOptions::FieldKind::kPixels) {
     s.options.field = BenerfOptions::FieldKind::kHash;
     s.options.init = BenerfOptions::Init::kEvents;
