@@ -655,7 +655,9 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
       return contrastFromCounts(given, camera, path, at.inverse_depth, ratio, o.log);
     };
     const auto inRange = [](double c) { return c >= kLeastContrast && c <= kMostContrast; };
-    Trajectory counted_path = fit(registered.poses);  // of the motion the count was taken along
+    // The motion the count was taken along, and its trajectory.
+    const ExposureMotion* counted_motion = &registered;
+    Trajectory counted_path = fit(registered.poses);
     CountedContrast counted = counts(registered, counted_path);
     result.parameters["contrast_from_counts_searched"] = counted.c;
     if (!inRange(counted.c)) return false;
@@ -665,6 +667,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
         motionFromLatentFrames(given, camera, Contrast{counted.c, counted.c * ratio}, o.log, false);
     if (!again.poses.empty()) {
       counted_c = counted.c;
+      counted_motion = &again;
       counted_path = fit(again.poses);
       counted = counts(again, counted_path);
     }
@@ -681,9 +684,8 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     // field 31.99 dB). Not where the motion registered at 2c misfits, nor where the count along it
     // is outside the range: such a motion tells nothing either way (the text preset at 120 x 90:
     // 0.211 along the motion registered at 0.2, 9.13 along the one at 0.4).
-    const ExposureMotion& counted_motion = again.poses.empty() ? registered : again;
     const double counted_blur = PixelGridProblem::longestImagePath(
-        camera, counted_path, counted_motion.inverse_depth, t0, t1);
+        camera, counted_path, counted_motion->inverse_depth, t0, t1);
     const ExposureMotion doubled =
         counted_blur < kHashBlur
             ? ExposureMotion{}
