@@ -302,7 +302,8 @@ Vector3 rotationFromEvents(const Observation& obs, const nerf::PinholeCamera& ca
 // above 1 px is also the sign of a wrong c, which the search walks away from
 // (registerAwayFromSearch): kOnePixel there (at 1.5 px the walk stopped at EDI's c of 0.28 for the
 // truth's 0.2 on nat_hubble_rocket_blur60_noisy, and the c found from that motion collapsed it:
-// 42.02 -> 27.73 dB).
+// 42.02 -> 27.73 dB); the pixel grid's registrations at the c that the events' counts tell take
+// kUnlessRepeated (benerf_train.cc, runPixelGrid).
 // With kUnlessRepeated, where the rigid camera does not explain every tracked point, it is fitted
 // again to the points whose neighbourhood fired at least kFiredEventsPerPixel (where that leaves
 // kMinTracks or more and drops some): EDI's latent frames report only part of the scene's change
