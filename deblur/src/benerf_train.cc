@@ -977,9 +977,11 @@ DeblurResult BenerfDeblurrer::run(const Observation& given, const DeblurRequest&
   // translation 12 times the truth's, for 2.03 degrees) and started the field 0.5-6.2 dB lower on
   // all ten frames (BENCHMARKS.md, "Where the grid declines, the hash field's start"). Where the
   // motion is mostly translation a rotation is a poor start: a photograph not in the suites with
-  // 60% of its image motion from translation declines and would gain 1.1 dB from its registered
-  // motion, and a rocket before its backdrop at half size (which does not decline) 11.6 dB. Which
-  // start to take is not yet told from the data.
+  // 60% of its image motion from translation, which declined until the registration at the counts'
+  // c took the band (runPixelGrid), would have gained 1.1 dB from its registered motion, and a
+  // rocket before its backdrop at half size (which does not decline) 11.6 dB. Which start to take
+  // is not told from the data (neither the warped events' contrast nor the re-blur of EDI's frame
+  // ranks them as their results do).
   if (o.field == BenerfOptions::FieldKind::kPixels) {
     s.options.field = BenerfOptions::FieldKind::kHash;
     s.options.init = BenerfOptions::Init::kEvents;
