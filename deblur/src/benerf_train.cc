@@ -138,6 +138,8 @@ MisfitBar misfitBar(bool contrast_given) {
 void reportMotion(const ExposureMotion& motion, DeblurResult& result) {
   result.parameters["representation_depth"] = motion.depth ? 1 : 0;
   result.parameters["parallax_px"] = motion.parallax_px;
+  result.parameters["depth_agreement"] = motion.depth_agreement;
+  result.parameters["depth_agreement_tiles"] = motion.depth_agreement_tiles;
   result.parameters["motion_residual_rotation_px"] = motion.residual_rotation_px;
   result.parameters["motion_residual_plane_px"] = motion.residual_plane_px;
   result.parameters["motion_residual_depth_px"] = motion.residual_depth_px;

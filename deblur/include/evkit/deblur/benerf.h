@@ -317,6 +317,18 @@ struct ExposureMotion {
   std::vector<StampedPose> poses;  // T_mid_t: the camera at each time in the mid-exposure frame
   bool depth = false;              // the depth model chosen (else the plane)
   double parallax_px = 0;  // the tiles' image motion off the best plane's, over the exposure
+  // The rank correlation over the tiles of their inverse depths' departures from the best plane,
+  // fitted to the times before mid-exposure and to those after it apart (NaN: too few tiles). A
+  // depth that the image shows moves it alike in both halves; the flows' errors differ between
+  // the halves' frames, and an error of the mid frame's own departs with opposite signs, the
+  // translation turning about mid-exposure. Where the tiles take away under 15% of the plane's
+  // misfit, they are chosen above kDepthAgreement, and beyond three standard errors of a rank
+  // correlation without any where the tiles are few (measured with the thresholds: -0.17-0.32 on
+  // the planar frames that the rule can reach, 0.43-0.94 on the five layered ones it took, where
+  // the depths gained 0.02-0.97 dB; ranks, not values: a few border tiles whose departures agreed
+  // put a planar frame at 0.61 by value; BENCHMARKS.md, "The depths beside the plane").
+  double depth_agreement = std::nan("");
+  int depth_agreement_tiles = 0;  // the tiles it is taken over
   double residual_rotation_px = 0, residual_plane_px = 0,
          residual_depth_px = 0;   // RMS of each model's residuals
   bool pixel_depth = false;       // the depth model refined to each pixel's own depth
@@ -427,6 +439,7 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
 // assumed one.
 inline constexpr double kLensK1[] = {0, -0.1, -0.2, -0.3, -0.4, -0.5};
 inline constexpr double kLensGain = 0.05;
+inline constexpr double kDepthAgreement = 0.4;  // ExposureMotion::depth_agreement
 struct CalibratedMotion {
   PinholeCamera camera;
   ExposureMotion motion;
