@@ -875,8 +875,11 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
     off[i] = std::abs(tiles.rho[i] - phi.dot(plane_w)) * travel;
   }
   m.parallax_px = percentileOf(off, 99);
-  std::tie(m.depth_agreement, m.depth_agreement_tiles) =
-      splitHalfAgreement(camera, tracks, tile_model, tiles, mid, plane_w);
+  // Not for the lens ladder's candidates (Depths::kTiles), scored by the tiles' misfit alone.
+  if (depths == Depths::kPixels) {
+    std::tie(m.depth_agreement, m.depth_agreement_tiles) =
+        splitHalfAgreement(camera, tracks, tile_model, tiles, mid, plane_w);
+  }
   // The depths where they move the image visibly (over half a pixel) and explain the tracks
   // clearly better than the plane. A near layer on a small part of the image shows less than its
   // parallax here, its tiles blurred into their surround and its tracks a small share: on
