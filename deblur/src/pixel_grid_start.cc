@@ -268,7 +268,10 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
   }
   // The sums of the regression of `along` averaged along the paths on the difference of `ends`
   // between the paths' ends; each row's, then the rows' in order: the same bits at any thread
-  // count.
+  // count. The average stands for the blur's integral over the exposure, by the trapezoid rule at
+  // the path's times (the ends half a step each): weighed alike, the ends counted a whole step and
+  // the c came out high by about one part in the times' count (BENCHMARKS.md, "The counts as a
+  // quadrature").
   struct Sums {
     double n = 0, sa = 0, sb = 0, saa = 0, sbb = 0, sab = 0;
   };
@@ -283,9 +286,9 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
         const Eigen::Vector2f* path = &paths[pixel * kTimes];
         const Eigen::Vector2d here(x, y);
         const auto point = [&](int k) { return here + path[k].cast<double>(); };
-        double averaged = 0;
-        for (int k = 0; k < kTimes; ++k) averaged += at(along, point(k));
-        averaged /= kTimes;
+        double averaged = 0.5 * (at(along, point(0)) + at(along, point(kTimes - 1)));
+        for (int k = 1; k + 1 < kTimes; ++k) averaged += at(along, point(k));
+        averaged /= kTimes - 1;
         double change = at(ends, point(kTimes - 1)) - at(ends, point(0));
         if (!scale.empty()) {
           const double w = 1.0 / scale.at<double>(y, x);
@@ -337,17 +340,18 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
   cv::Mat change(H, W, CV_64F);
   for (int round = 0; round < 8; ++round) {
     const double c = out.c;
-    // L_start (exp(c n) - 1) / c with L_start = B / mean_k exp(c level_k), each exponent taken
-    // less the largest (level_0 = 0, so that one is at least 0): no overflow however many events.
+    // L_start (exp(c n) - 1) / c with L_start = B / mean_k exp(c level_k) (the trapezoid's mean),
+    // each exponent taken less the largest (level_0 = 0, so that one is at least 0): no overflow
+    // however many events.
 #pragma omp parallel for schedule(static)
     for (int y = 0; y < H; ++y)
       for (int x = 0; x < W; ++x) {
         const float* levels = &level[(static_cast<size_t>(y) * W + x) * kTimes];
         double top = 0;
         for (int k = 1; k < kTimes; ++k) top = std::max(top, c * levels[k]);
-        double mean = 0;
-        for (int k = 0; k < kTimes; ++k) mean += std::exp(c * levels[k] - top);
-        mean /= kTimes;
+        double mean = 0.5 * (std::exp(-top) + std::exp(c * levels[kTimes - 1] - top));
+        for (int k = 1; k + 1 < kTimes; ++k) mean += std::exp(c * levels[k] - top);
+        mean /= kTimes - 1;
         const double end = c * levels[kTimes - 1];
         change.at<double>(y, x) =
             linear.at<double>(y, x) * (std::exp(end - top) - std::exp(-top)) / (mean * c);
