@@ -1561,7 +1561,7 @@ TEST(Benerf, ThresholdsNotGivenAreTheScaleThatTheMotionExplains) {
 // the natural suite's true motion on slanted_bricks_blur60 0.221 at 21 times, 0.238 at 11 and
 // 0.210 at 81, by the trapezoid 0.207, 0.210 and 0.206). What is left is the events' own: a pixel
 // fires its first event a whole threshold from its reference level, so the counts fall short of
-// the log change (by 5.5% at half size on the motorcycle, whose c along the true motion is then
+// the log change (by 5.4% at half size on the motorcycle, whose c along the true motion is then
 // 0.218).
 TEST(Benerf, TheThresholdsFromTheCountsAreNotBiasedByNoiseEvents) {
   const auto natural = prerolledNatural("cat_bricks", 1, 15, 0.5, false);
