@@ -29,6 +29,15 @@ double vertexShift(double a, double b, double c, double h) {
   return std::isfinite(curvature) && curvature > 0 ? 0.5 * h * (a - c) / curvature : 0.0;
 }
 
+// The mean of value(0), ..., value(n - 1) over the interval they sample, by the trapezoid rule: the
+// two ends half a step each (n >= 2).
+template <typename Value>
+double trapezoidMean(int n, Value value) {
+  double sum = 0.5 * (value(0) + value(n - 1));
+  for (int k = 1; k + 1 < n; ++k) sum += value(k);
+  return sum / (n - 1);
+}
+
 // The views of the search for c (contrastFromSolves' grids, contrastFromCounts' paths): the blur
 // integral coarser than the run's, alike for every c.
 constexpr int kSearchViews = 20;
@@ -286,9 +295,8 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
         const Eigen::Vector2f* path = &paths[pixel * kTimes];
         const Eigen::Vector2d here(x, y);
         const auto point = [&](int k) { return here + path[k].cast<double>(); };
-        double averaged = 0.5 * (at(along, point(0)) + at(along, point(kTimes - 1)));
-        for (int k = 1; k + 1 < kTimes; ++k) averaged += at(along, point(k));
-        averaged /= kTimes - 1;
+        double averaged =
+            benerf_detail::trapezoidMean(kTimes, [&](int k) { return at(along, point(k)); });
         double change = at(ends, point(kTimes - 1)) - at(ends, point(0));
         if (!scale.empty()) {
           const double w = 1.0 / scale.at<double>(y, x);
@@ -349,9 +357,8 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
         const float* levels = &level[(static_cast<size_t>(y) * W + x) * kTimes];
         double top = 0;
         for (int k = 1; k < kTimes; ++k) top = std::max(top, c * levels[k]);
-        double mean = 0.5 * (std::exp(-top) + std::exp(c * levels[kTimes - 1] - top));
-        for (int k = 1; k + 1 < kTimes; ++k) mean += std::exp(c * levels[k] - top);
-        mean /= kTimes - 1;
+        const double mean = benerf_detail::trapezoidMean(
+            kTimes, [&](int k) { return std::exp(c * levels[k] - top); });
         const double end = c * levels[kTimes - 1];
         change.at<double>(y, x) =
             linear.at<double>(y, x) * (std::exp(end - top) - std::exp(-top)) / (mean * c);
