@@ -212,6 +212,32 @@ void Hdf5Precheck::checkLocalHeap(uint64_t address, const std::string& what) con
     fail(at, "a data segment of " + std::to_string(bytes) + " bytes at address " +
                  std::to_string(segment) + " lies outside the file");
   }
+  // The free list: blocks inside the data segment, each starting with the next block's offset and
+  // its own size (L each); 1 ends the list. The library follows it without a bound and allocates a
+  // node per block, so a list that loops back asks for memory until none is left. Blocks do not
+  // overlap, so a list longer than the segment holds blocks is a loop.
+  const uint64_t kEnd = 1;
+  const uint64_t entry = 2 * static_cast<uint64_t>(length_bytes_);
+  uint64_t block = loadLe(h + 8 + length_bytes_, length_bytes_);
+  int64_t cited = at + 8 + length_bytes_;  // where the offset of `block` is stored
+  for (uint64_t blocks = 0; block != kEnd; ++blocks) {
+    if (block > bytes || entry > bytes - block) {
+      fail(cited, "a free block at offset " + std::to_string(block) + " lies outside its " +
+                      std::to_string(bytes) + "-byte data segment");
+    }
+    if (blocks > bytes / entry) fail(cited, "the free list loops back on itself");
+    uint8_t b[16] = {};
+    file_.seek(static_cast<int64_t>(base_ + segment + block));
+    file_.readExact(b, entry, "a local heap free block");
+    const uint64_t size = loadLe(b + length_bytes_, length_bytes_);
+    cited = static_cast<int64_t>(base_ + segment + block);
+    if (size > bytes - block) {
+      fail(cited, "a free block of " + std::to_string(size) + " bytes at offset " +
+                      std::to_string(block) + " runs past its " + std::to_string(bytes) +
+                      "-byte data segment");
+    }
+    block = loadLe(b, length_bytes_);
+  }
 }
 
 void Hdf5Precheck::checkLayout(const uint8_t* m, uint64_t size, int64_t at,
