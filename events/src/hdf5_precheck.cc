@@ -363,6 +363,7 @@ void Hdf5Precheck::checkAttribute(const uint8_t* m, uint64_t size, int64_t at,
   const uint64_t space_at = type_at + padded(type);
   const uint64_t value_at = space_at + padded(space);
   if (value_at > size || type < 8 || space < 4) fail("its parts run past the message");
+  checkDatatype(m + type_at, type, at + static_cast<int64_t>(type_at), "an attribute of " + what);
   if ((m[type_at] & 0x0f) == kVariableLength) return;  // the value holds heap references
   // Dataspace: version, rank, flags, [v1: 5 reserved bytes; v2: type], then the dimensions. A
   // null dataspace (v2 type 2) holds no value; a scalar one (rank 0) one element.
@@ -384,17 +385,30 @@ void Hdf5Precheck::checkAttribute(const uint8_t* m, uint64_t size, int64_t at,
 void Hdf5Precheck::checkDatatype(const uint8_t* m, uint64_t size, int64_t at,
                                  const std::string& what) const {
   // Datatype message, section IV.A.2.d: class and version, 3 bytes of class bits, the element size
-  // (4 bytes). libhdf5 converts integers and floats of any stated size, reading past its buffers
-  // for sizes no machine has (integers of 12,802 and of 16 bytes, found by fuzzing). Event files
-  // hold numbers of 1 to 8 bytes.
-  if (size < 8) throwAtByte(path_, at, "datatype of " + what + ": truncated");
+  // (4 bytes), then the class's properties; a number's begin with its bits' offset and precision
+  // (2 bytes each), a float's go on with the exponent's and mantissa's locations and sizes (1 byte
+  // each) and the exponent's bias (4). libhdf5 converts numbers of any stated size and precision,
+  // reading past its buffers for sizes no machine has (integers of 12,802 and of 16 bytes) and for
+  // bits past the element's (a precision of 32,832 bits in an 8-byte integer), all found by
+  // fuzzing. Event files hold numbers of 1 to 8 bytes.
+  const auto fail = [&](const std::string& problem) {
+    throwAtByte(path_, at, "datatype of " + what + ": " + problem);
+  };
+  if (size < 8) fail("truncated");
   const int type_class = m[0] & 0x0f;
-  const uint64_t bytes = loadLe(m + 4, 4);
   const bool numeric = type_class == 0 || type_class == 1;  // fixed-point, floating-point
-  if (numeric && bytes != 1 && bytes != 2 && bytes != 4 && bytes != 8) {
-    throwAtByte(path_, at,
-                "datatype of " + what + ": a number of " + std::to_string(bytes) + " bytes");
+  if (!numeric) return;
+  const uint64_t bytes = loadLe(m + 4, 4);
+  if (bytes != 1 && bytes != 2 && bytes != 4 && bytes != 8)
+    fail("a number of " + std::to_string(bytes) + " bytes");
+  if (size < (type_class == 0 ? 12u : 20u)) fail("truncated properties");
+  const uint64_t offset = loadLe(m + 8, 2), precision = loadLe(m + 10, 2);
+  if (precision == 0 || offset + precision > 8 * bytes) {
+    fail("bits " + std::to_string(offset) + " to " + std::to_string(offset + precision) + " of a " +
+         std::to_string(8 * bytes) + "-bit number");
   }
+  if (type_class == 1 && (m[12] + m[13] > precision || m[14] + m[15] > precision))
+    fail("an exponent or mantissa past the number's precision");
 }
 
 }  // namespace evkit::detail
