@@ -1,6 +1,7 @@
 #include "hdf5_precheck.h"
 
 #include <cstring>
+#include <optional>
 #include <set>
 #include <vector>
 
@@ -12,11 +13,13 @@ namespace {
 
 constexpr uint8_t kSignature[8] = {0x89, 'H', 'D', 'F', '\r', '\n', 0x1a, '\n'};
 constexpr int kContinuation = 0x10;  // object header message types
+constexpr int kDataspace = 0x01;
 constexpr int kDatatype = 0x03;
 constexpr int kLayout = 0x08;
 constexpr int kAttribute = 0x0c;
 constexpr int kVariableLength = 9;  // datatype class
 constexpr int kSymbolTable = 0x11;
+constexpr int kCompactLayout = 0;
 constexpr int kChunkedLayout = 2;
 constexpr size_t kMaxChunks = 4096;         // object header chunks of one object
 constexpr size_t kMaxIndexNodes = 1 << 16;  // chunk B-tree nodes of one dataset
@@ -139,6 +142,11 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
   std::set<int64_t> seen = {messages_at};
   const size_t header_bytes = version == 1 ? 8 : (creation_order ? 6 : 4);
   std::vector<uint8_t> chunk;
+  // A compact dataset's data is in its layout message, which libhdf5 1.10.8 reads at the size the
+  // dataspace and datatype give, past the message when they claim more (a heap overflow inside
+  // H5Dread, found by fuzzing): the three are compared once every message is read.
+  std::optional<uint64_t> elements, element_bytes, compact_bytes;
+  int64_t compact_at = 0;
   while (!pending.empty()) {
     const Chunk c = pending.back();
     pending.pop_back();
@@ -167,12 +175,17 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
         if (seen.size() > kMaxChunks)
           fail(at, "more than " + std::to_string(kMaxChunks) + " chunks");
         if (seen.insert(next_at).second) pending.push_back({next_at, next_bytes});
+      } else if (type == kDataspace) {
+        elements = dataspaceElements(&chunk[data], size);
       } else if (type == kDatatype) {
         checkDatatype(&chunk[data], size, c.at + static_cast<int64_t>(data), what);
+        if (size >= 8) element_bytes = loadLe(&chunk[data + 4], 4);
       } else if (type == kAttribute) {
         checkAttribute(&chunk[data], size, c.at + static_cast<int64_t>(data), what);
       } else if (type == kLayout) {
         checkLayout(&chunk[data], size, c.at + static_cast<int64_t>(data), what);
+        compact_bytes = compactBytes(&chunk[data], size);
+        compact_at = c.at + static_cast<int64_t>(data);
       } else if (type == kSymbolTable) {
         // An old-style group: a B-tree of symbol nodes and the local heap of their names; the
         // library loads the heap's data segment at its stated size.
@@ -183,6 +196,52 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
       pos = data + size;
     }
   }
+  if (compact_bytes && elements && element_bytes &&
+      (*element_bytes != 0 && *elements > *compact_bytes / *element_bytes)) {
+    throwAtByte(path_, compact_at,
+                "data layout of " + what + ": compact data of " + std::to_string(*compact_bytes) +
+                    " bytes for " + std::to_string(*elements) + " elements of " +
+                    std::to_string(*element_bytes) + " bytes");
+  }
+}
+
+std::optional<uint64_t> Hdf5Precheck::dataspaceElements(const uint8_t* m, uint64_t size) const {
+  // Dataspace message, section IV.A.2.b: version, rank, flags, [v1: 5 reserved bytes; v2: type
+  // (2: null)], then the dimensions (L each). The product saturates: only its size against a
+  // compact dataset's bytes matters.
+  if (size < 4) return std::nullopt;
+  const int version = m[0], rank = m[1];
+  if (version == 2 && m[3] == 2) return 0;
+  const uint64_t dims_at = version == 1 ? 8 : 4;
+  if (dims_at + static_cast<uint64_t>(rank) * length_bytes_ > size) return std::nullopt;
+  uint64_t n = 1;
+  for (int d = 0; d < rank; ++d) {
+    const uint64_t dim =
+        loadLe(m + dims_at + static_cast<uint64_t>(d) * length_bytes_, length_bytes_);
+    n = dim != 0 && n > UINT64_MAX / dim ? UINT64_MAX : n * dim;
+  }
+  return n;
+}
+
+std::optional<uint64_t> Hdf5Precheck::compactBytes(const uint8_t* m, uint64_t size) const {
+  // Data layout message, section IV.A.2.i, of the compact class: versions 3-4 (version, class,
+  // the data's size in 2 bytes, the data) and 1-2 (version, dimensionality, class, 5 reserved
+  // bytes, 4-byte dimensions, the data's size in 4 bytes, the data). The size stated is what the
+  // message holds: no more than the message's own bytes.
+  const int version = size >= 3 ? m[0] : 0;
+  uint64_t stated = 0, at = 0;
+  if ((version == 3 || version == 4) && m[1] == kCompactLayout && size >= 4) {
+    stated = loadLe(m + 2, 2);
+    at = 4;
+  } else if ((version == 1 || version == 2) && m[2] == kCompactLayout) {
+    at = 8 + 4 * static_cast<uint64_t>(m[1]);
+    if (at + 4 > size) return 0;
+    stated = loadLe(m + at, 4);
+    at += 4;
+  } else {
+    return std::nullopt;
+  }
+  return std::min(stated, size - at);
 }
 
 void Hdf5Precheck::checkLocalHeap(uint64_t address, const std::string& what) const {

@@ -8,6 +8,7 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <string>
 
 #include "binary_file.h"
@@ -31,6 +32,10 @@ class Hdf5Precheck {
 
  private:
   void checkLocalHeap(uint64_t address, const std::string& what) const;
+  // A dataspace message's element count, and a compact layout message's data bytes (nullopt:
+  // not a compact layout, or a dataspace too short to tell).
+  std::optional<uint64_t> dataspaceElements(const uint8_t* message, uint64_t size) const;
+  std::optional<uint64_t> compactBytes(const uint8_t* message, uint64_t size) const;
   void checkLayout(const uint8_t* message, uint64_t size, int64_t at,
                    const std::string& what) const;
   void checkDatatype(const uint8_t* message, uint64_t size, int64_t at,
