@@ -207,8 +207,8 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
 
 std::optional<uint64_t> Hdf5Precheck::dataspaceElements(const uint8_t* m, uint64_t size) const {
   // Dataspace message, section IV.A.2.b: version, rank, flags, [v1: 5 reserved bytes; v2: type
-  // (2: null)], then the dimensions (L each). The product saturates: only its size against a
-  // compact dataset's bytes matters.
+  // (2: null)], then the dimensions (L each). The product saturates: only its size against the
+  // bytes that hold the data (a compact dataset's, an attribute's value) matters.
   if (size < 4) return std::nullopt;
   const int version = m[0], rank = m[1];
   if (version == 2 && m[3] == 2) return 0;
@@ -424,21 +424,14 @@ void Hdf5Precheck::checkAttribute(const uint8_t* m, uint64_t size, int64_t at,
   if (value_at > size || type < 8 || space < 4) fail("its parts run past the message");
   checkDatatype(m + type_at, type, at + static_cast<int64_t>(type_at), "an attribute of " + what);
   if ((m[type_at] & 0x0f) == kVariableLength) return;  // the value holds heap references
-  // Dataspace: version, rank, flags, [v1: 5 reserved bytes; v2: type], then the dimensions. A
-  // null dataspace (v2 type 2) holds no value; a scalar one (rank 0) one element.
+  // A null dataspace (v2 type 2) holds no value; a scalar one (rank 0) one element.
   if (m[space_at] >= 2 && m[space_at + 3] == 2) return;
-  const int rank = m[space_at + 1];
-  const uint64_t dims_at = space_at + (m[space_at] == 1 ? 8 : 4);
-  if (rank > 32 || dims_at + static_cast<uint64_t>(rank) * length_bytes_ > space_at + space)
-    fail("a damaged dataspace");
-  uint64_t bytes = loadLe(m + type_at + 4, 4);  // the element size
-  for (int d = 0; d < rank; ++d) {
-    const uint64_t n =
-        loadLe(m + dims_at + static_cast<uint64_t>(d) * length_bytes_, length_bytes_);
-    if (n != 0 && bytes > (size - value_at) / n) fail("a value larger than its message");
-    bytes *= n;
-  }
-  if (bytes > size - value_at) fail("a value larger than its message");
+  const std::optional<uint64_t> elements =
+      m[space_at + 1] > 32 ? std::nullopt : dataspaceElements(m + space_at, space);
+  if (!elements) fail("a damaged dataspace");
+  const uint64_t element_bytes = loadLe(m + type_at + 4, 4);
+  if (*elements != 0 && element_bytes > (size - value_at) / *elements)
+    fail("a value larger than its message");
 }
 
 void Hdf5Precheck::checkDatatype(const uint8_t* m, uint64_t size, int64_t at,

@@ -112,6 +112,41 @@ TEST(IoErrors, TruncatedAndCorruptHdf5) {
   }
 }
 
+TEST(IoErrors, Hdf5AttributeWhoseDataspaceClaimsMoreThanItsMessage) {
+  // h5py_earliest.h5 holds the root attribute sensor_resolution, two 8-byte integers, in a version
+  // 1 attribute message: version, reserved, name, datatype and dataspace sizes (2 bytes each), then
+  // the name, the datatype and the dataspace, each padded to 8 bytes (HDF5 file format
+  // specification, section IV.A.2.m). Its dataspace (version 1: version, rank, flags, 5 reserved
+  // bytes, then the dimensions) is made to claim 5000 elements, or a rank of 40.
+  ScratchDir dir;
+  const std::string bytes =
+      test::readText(std::string(EVKIT_SOURCE_DIR) + "/tests/events/data/h5py_earliest.h5");
+  const size_t message = bytes.find("sensor_resolution") - 8;
+  ASSERT_EQ(bytes[message], 1);
+  const auto padded = [](size_t n) { return (n + 7) / 8 * 8; };
+  const auto size16 = [&](size_t at) {
+    return static_cast<size_t>(static_cast<uint8_t>(bytes[at])) |
+           static_cast<size_t>(static_cast<uint8_t>(bytes[at + 1])) << 8;
+  };
+  const size_t space = message + 8 + padded(size16(message + 2)) + padded(size16(message + 4));
+  ASSERT_EQ(bytes[space + 1], 1);  // rank 1
+  ASSERT_EQ(bytes[space + 8], 2);  // two elements
+  std::string longer = bytes;
+  longer[space + 8] = static_cast<char>(5000 & 0xff);
+  longer[space + 9] = static_cast<char>(5000 >> 8);
+  longer[space + 16] = longer[space + 8];  // the maximum dimension alike
+  longer[space + 17] = longer[space + 9];
+  writeText(dir / "longer.h5", longer);
+  expectContains(readError(dir / "longer.h5"),
+                 "byte " + std::to_string(message) +
+                     ": an attribute of the root group: a value larger than its message");
+  std::string ranked = bytes;
+  ranked[space + 1] = 40;
+  writeText(dir / "ranked.h5", ranked);
+  expectContains(readError(dir / "ranked.h5"),
+                 ": an attribute of the root group: a damaged dataspace");
+}
+
 TEST(IoErrors, Hdf5WithoutEventsOrWithBadValues) {
   ScratchDir dir;
   Recording rec;
