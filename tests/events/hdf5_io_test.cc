@@ -185,6 +185,18 @@ TEST(Hdf5Io, ReadsTheDsecLayout) {
 // A damaged millisecond origin: t_offset at int64's ends. The evkit layout's index is ignored (the
 // times are read and sliced by binary search); DSEC's offset that pushes a time out of int64 is one
 // error naming the event. Found by the fuzzer as a signed overflow.
+// A user block before the superblock (h5py's userblock_size, or 512 bytes prepended to a file):
+// the superblock is then found at 512, and its addresses count from there whatever base address it
+// states, as libhdf5 reads them (HDF5 file format specification, section II.A; H5F__super_read).
+TEST(Hdf5Io, ReadsAFileBehindAUserBlock) {
+  ScratchDir dir;
+  Recording rec;
+  rec.events = randomEvents({.count = 1000, .sensor = {64, 48}, .seed = 5});
+  writeRecording(dir / "plain.h5", rec);
+  test::writeText(dir / "behind.h5", std::string(512, 'u') + test::readText(dir / "plain.h5"));
+  expectSameEvents(readRecording(dir / "behind.h5").events, rec.events);
+}
+
 TEST(Hdf5Io, AMillisecondOriginAtInt64sEndsIsAnErrorOrIgnoredNotAnOverflow) {
   ScratchDir dir;
   RandomEventOptions o;
