@@ -709,8 +709,8 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
       result.parameters["contrast_counts_follow"] = follow;
       if (follow > kMostCountsFollow) return false;
     }
-    const SolvedContrast found =
-        contrastFromSolves(given, camera, fit, po, ratio, counted.c, kCountsBand, o, result);
+    const SolvedContrast found = contrastFromSolves(given, camera, fit, po, ratio, counted.c,
+                                                    kCountsBand, counted_blur, o, result);
     result.parameters["contrast_at_range_end"] = found.at_end ? 1 : 0;
     if (found.at_end) return false;
     contrast = found.contrast;

@@ -38,10 +38,6 @@ double trapezoidMean(int n, Value value) {
   return sum / (n - 1);
 }
 
-// The views of the search for c (contrastFromSolves' grids, contrastFromCounts' paths): the blur
-// integral coarser than the run's, alike for every c.
-constexpr int kSearchViews = 20;
-
 }  // namespace
 
 cv::Mat exposureEventCounts(const Observation& obs) {
@@ -99,8 +95,13 @@ StartFit startFit(const PixelGridProblem& problem, const std::vector<double>& x,
 // registered at that scale, best re-makes the blurry frame. At a wrong c the events ask the image
 // for log changes that the blur does not show, so the solved image re-blurs away from the frame.
 // Each candidate registers its own motion: on one motion registered at a c that is too low, the
-// solves are biased low as well. The band holds the walk where its misfit falls towards small c
-// without a least (smooth content with noisy events: the events' noise weighs least at a small c,
+// solves are biased low as well, and around one motion the walk cannot leave the c it was
+// registered at where the counts are off. A motion registered at a larger c is longer, though, and
+// the walk chose the registration that re-makes the frame best rather than the c (15 px: the least
+// at 0.225 for the truth's 0.2); where refineWalkMotions, each candidate's motion is first refined
+// from its start, as the final solve refines its own, and the least is the c's (0.206;
+// BENCHMARKS.md, "The walk's motion"). The band holds the walk where its misfit falls towards small
+// c without a least (smooth content with noisy events: the events' noise weighs least at a small c,
 // and smooth content blurred looks much like itself; BENCHMARKS.md, "The thresholds from the
 // events' counts"); within it the walk's sharp least refines the counts' c, which is up to 20% off.
 // The candidates' registrations leave the depths' offset unchosen (only their image motion is
@@ -119,11 +120,15 @@ StartFit startFit(const PixelGridProblem& problem, const std::vector<double>& x,
 SolvedContrast contrastFromSolves(
     const Observation& given, const PinholeCamera& camera,
     const std::function<Trajectory(const std::vector<StampedPose>&)>& fit, PixelGridOptions po,
-    double ratio, double c0, double band, const BenerfOptions& o, DeblurResult& result) {
+    double ratio, double c0, double band, double blur_px, const BenerfOptions& o,
+    DeblurResult& result) {
   // Ten L-BFGS steps (five left nat_text_coins_blur60 at a start of 0.164 where the truth is 0.2)
-  // without the motion's refinement (which did not move the estimate), on at most kSearchViews
-  // views.
-  constexpr int kSteps = 10;
+  // on at most kSearchViews views, after three Levenberg-Marquardt steps of the motion's
+  // refinement where refineWalkMotions(blur_px) (30 or 100 L-BFGS steps did not move the walk's
+  // least; the refinement did).
+  constexpr int kSteps = 10, kRefineSteps = 3;
+  const bool refine_motions = refineWalkMotions(blur_px);
+  result.parameters["contrast_solves_refine_motion"] = refine_motions ? 1 : 0;
   po.max_views = std::max(po.min_views, kSearchViews);
   // The short solves read the events as the log level, not as the sensor's reference level that
   // the final solve reads (PixelGridOptions::hysteresis): on the natural suite without thresholds
@@ -151,8 +156,9 @@ SolvedContrast contrastFromSolves(
                                            unused)
                          : given;
     po.event_robust = o.mid_robust;
-    const PixelGridProblem problem(obs, camera, motion, registered.inverse_depth, contrast, po);
+    PixelGridProblem problem(obs, camera, motion, registered.inverse_depth, contrast, po);
     std::vector<double> x = problem.start(ediMidFrame(obs, contrast));
+    if (refine_motions) problem.refineMotion(x, kRefineSteps);
     PixelGridProblem::Terms terms;
     problem.solve(x, kSteps, &terms);
     const double misfit =

@@ -52,9 +52,21 @@ inline const double kCountsBand = std::log(2.0) / 3;
 // 0.098, 0.178 along the one at 0.197; the grid at the count 6.2 dB below the hash field).
 // BENCHMARKS.md, "Whether the counts tell c".
 inline constexpr double kMostCountsFollow = 0.75;
+// The views of the search for c (contrastFromSolves' grids, contrastFromCounts' paths): the blur
+// integral coarser than the run's, alike for every c.
+inline constexpr int kSearchViews = 20;
+// Whether the short solves refine each candidate's motion before solving, at a blur of `blur_px`
+// (the longest image path along the motion the counts were taken along): from 5 px, where the blur
+// tells c (below it, the counts' c stands: hard_blur2 39.78 -> 34.22 dB), to where kSearchViews
+// views are 2 px apart (38 px; at 70 px, 3.5 px apart, the refined motions fit the views'
+// sampling and the walk ends low: hard_blur70 31.41 -> 28.82). BENCHMARKS.md, "The walk's motion".
+inline bool refineWalkMotions(double blur_px) {
+  constexpr double kLeastBlur = 5, kMostViewSpacing = 2;
+  return blur_px >= kLeastBlur && blur_px <= kMostViewSpacing * (kSearchViews - 1);
+}
 // The thresholds refined from `c0` by short solves of the grid, each on the motion registered at
-// its own c: the c within `band` of c0 (in log c) at which the solved image re-blurs closest to
-// the frame.
+// its own c (refined where refineWalkMotions(blur_px)): the c within `band` of c0 (in log c) at
+// which the solved image re-blurs closest to the frame.
 struct SolvedContrast {
   Contrast contrast;
   bool at_end = false;  // the least at an end of [0.05, 1]
@@ -62,6 +74,7 @@ struct SolvedContrast {
 SolvedContrast contrastFromSolves(
     const Observation& given, const PinholeCamera& camera,
     const std::function<Trajectory(const std::vector<StampedPose>&)>& fit, PixelGridOptions po,
-    double ratio, double c0, double band, const BenerfOptions& o, DeblurResult& result);
+    double ratio, double c0, double band, double blur_px, const BenerfOptions& o,
+    DeblurResult& result);
 
 }  // namespace evkit::benerf_detail

@@ -1668,6 +1668,30 @@ TEST(Benerf, ThresholdsNotGivenAreRefinedByShortSolvesOfTheGrid) {
       << "BeNeRF " << m.benerf_psnr << " dB, EDI (c searched) " << m.edi_psnr << " dB";
 }
 
+// Without thresholds, the short solves that refine the counts' c each solve on the motion
+// registered at their own c, and a motion registered between EDI's frames at a larger c is longer:
+// unrefined, the walk chose the motion that re-makes the frame best rather than the c, and ended
+// high at short blur. Each candidate's motion is now refined from its start first, as the final
+// solve refines its own (refineWalkMotions: from 5 px of blur to 38). At half the natural suite's
+// size, 15 px, from a 30 ms pre-roll: the astronaut on a plane, then the coffee on a plane with the
+// suite's noise. Measured: c 0.205 and 0.211 (the truth 0.2), 38.49 and 39.05 dB; with the walk's
+// motions unrefined 0.220 and 0.233, 37.30 and 37.70 dB.
+TEST(Benerf, WithoutThresholdsTheWalksMotionsAreRefinedBeforeTheyScoreAC) {
+  for (const auto& [scene, noisy] : {std::pair{"astronaut_plane", false}, {"coffee_plane", true}}) {
+    SCOPED_TRACE(scene);
+    const auto natural = prerolledNatural(scene, 1, 15, 0.7, noisy);
+    if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
+    double truth = 0;
+    const AtMidExposure m = withoutThresholds(*natural, &truth);
+    const auto& p = m.benerf.parameters;
+    EXPECT_EQ(p.at("contrast_solves_refine_motion"), 1.0);
+    EXPECT_NEAR(p.at("contrast_estimated"), truth, 0.07 * truth)
+        << "from the counts " << p.at("contrast_from_counts");
+    EXPECT_GT(m.benerf_psnr, m.edi_psnr + 5.0)
+        << "BeNeRF " << m.benerf_psnr << " dB, EDI (c searched) " << m.edi_psnr << " dB";
+  }
+}
+
 // Without thresholds, on smooth, dark photographs with noisy events the short solves' misfit falls
 // towards small c (the events' noise weighs least there, and the blur of smooth content barely
 // tells), and the counts' c holds them: the phantom before microaneurysms (heldOutNoisy's
@@ -1729,18 +1753,18 @@ TEST(Benerf, WithoutThresholdsTheMotionAtTheCountsCMayMisfitAsWithThem) {
       << "BeNeRF " << m.benerf_psnr << " dB, EDI (c searched) " << m.edi_psnr << " dB";
 }
 
-// On a smooth scene the short solves walk to the lowest c they may (the band's end below the
-// counts' c), the grid's start misfits its frame there, and the grid declines: the hash field
+// On a smooth scene the short solves barely tell c (smooth shading blurred looks much like itself),
+// the grid's start misfits its frame at the c they end at, and the grid declines: the hash field
 // with normalised events, which need no c, runs. The RGB-D scene (smooth shading) at 120 x 90,
-// 15 px of blur, contrast.txt removed: the counts' c 0.235 (truth 0.2), the walk 0.187, the hash
-// field 36.5 dB against EDI's 26.0 at its searched c. Four samples per ray (the scene is one
-// surface) keep the test cheap under the sanitizers: 37.7 dB at eight, in 45% more time.
+// 15 px of blur, contrast.txt removed: the counts' c 0.235 (truth 0.2), the walk 0.252 (with its
+// motions unrefined, at the band's lower end, 0.187), the hash field 36.5 dB against EDI's 26.0 at
+// its searched c. Four samples per ray (the scene is one surface) keep the test cheap under the
+// sanitizers: 37.7 dB at eight, in 45% more time.
 TEST(Benerf, WithoutThresholdsTheGridDeclinesWhereItsStartMisfits) {
   double truth = 0;
   const AtMidExposure m = withoutThresholds(presetObservation("rgbd", 15), &truth, 4);
   const auto& p = m.benerf.parameters;
   EXPECT_NEAR(p.at("contrast_from_counts"), truth, 0.25 * truth);
-  EXPECT_LT(p.at("contrast_estimated"), 0.85 * p.at("contrast_from_counts"));
   EXPECT_EQ(p.at("start_to_hash"), 1.0);
   EXPECT_EQ(p.at("representation_pixels"), 0.0);
   EXPECT_EQ(p.at("initial_from_events"), 1.0);
