@@ -1,6 +1,7 @@
 #include "hdf5_precheck.h"
 
 #include <cstring>
+#include <functional>
 #include <optional>
 #include <set>
 #include <vector>
@@ -21,8 +22,9 @@ constexpr int kVariableLength = 9;  // datatype class
 constexpr int kSymbolTable = 0x11;
 constexpr int kCompactLayout = 0;
 constexpr int kChunkedLayout = 2;
-constexpr size_t kMaxChunks = 4096;         // object header chunks of one object
-constexpr size_t kMaxIndexNodes = 1 << 16;  // chunk B-tree nodes of one dataset
+constexpr size_t kMaxChunks = 4096;              // object header chunks of one object
+constexpr size_t kMaxIndexNodes = 1 << 16;       // nodes of one B-tree
+constexpr int kGroupNodes = 0, kChunkNodes = 1;  // version 1 B-tree node types
 
 uint64_t loadLe(const uint8_t* p, int bytes) {
   uint64_t v = 0;
@@ -192,6 +194,8 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
         // library loads the heap's data segment at its stated size.
         if (size < static_cast<uint64_t>(2 * offset_bytes_))
           fail(c.at + static_cast<int64_t>(pos), "a short symbol table message");
+        checkGroupIndex(loadLe(&chunk[data], offset_bytes_), c.at + static_cast<int64_t>(data),
+                        what);
         checkLocalHeap(loadLe(&chunk[data + offset_bytes_], offset_bytes_), what);
       }
       pos = data + size;
@@ -348,37 +352,73 @@ void Hdf5Precheck::checkLayout(const uint8_t* m, uint64_t size, int64_t at,
   }
   if (version <= 3) {
     const size_t address_at = version == 3 ? 3 : 8;
-    checkChunkIndex(loadLe(m + address_at, offset_bytes_), rank, what);
+    checkChunkIndex(loadLe(m + address_at, offset_bytes_), at + static_cast<int64_t>(address_at),
+                    rank, what);
   }
 }
 
-void Hdf5Precheck::checkChunkIndex(uint64_t address, int rank, const std::string& what) const {
-  // Version 1 B-tree of raw data chunks (section III.A.1): "TREE", type 1, level, entries, two
-  // sibling addresses, then key, child, key, child, ..., key. A key holds the chunk's stored size
-  // (4 bytes), its filter mask (4) and `rank` 8-byte offsets; a leaf's children are the chunks.
-  // The library reads each chunk at its stored size.
+void Hdf5Precheck::checkChunkIndex(uint64_t address, int64_t cited, int rank,
+                                   const std::string& what) const {
+  // A chunk B-tree's keys hold the chunk's stored size (4 bytes), its filter mask (4) and `rank`
+  // 8-byte offsets; its leaves' children are the chunks, which the library reads at their stored
+  // size.
   if (undefinedAddress(address, offset_bytes_)) return;  // no chunk written yet
+  const uint64_t limit = static_cast<uint64_t>(file_size_) - base_;
+  const std::string index = "chunk index of " + what;
+  checkBTree(address, cited, kChunkNodes, 8 + 8 * static_cast<size_t>(rank), index,
+             [&](const uint8_t* key, uint64_t chunk, int64_t at) {
+               const uint64_t stored = loadLe(key, 4);
+               if (stored > limit - chunk || stored > kMaxHdf5ChunkBytes) {
+                 throwAtByte(path_, at,
+                             index + ": a chunk of " + std::to_string(stored) +
+                                 " bytes at address " + std::to_string(chunk) +
+                                 " runs past the end of the file");
+               }
+             });
+}
+
+void Hdf5Precheck::checkGroupIndex(uint64_t address, int64_t cited, const std::string& what) const {
+  // An old-style group's B-tree: its keys are offsets into the group's local heap (L bytes), its
+  // leaves' children symbol table nodes ("SNOD", version, reserved, the symbols' count, then the
+  // entries; section III.B). libhdf5 1.10.8 reads a node at any address it is given, the
+  // undefined one included (a segfault inside H5Lexists, found by fuzzing).
+  const uint64_t limit = static_cast<uint64_t>(file_size_) - base_;
+  const std::string index = "group index of " + what;
+  checkBTree(address, cited, kGroupNodes, static_cast<size_t>(length_bytes_), index,
+             [&](const uint8_t*, uint64_t node, int64_t at) {
+               if (8 > limit - node)
+                 throwAtByte(path_, at, index + ": a symbol table node past the end of the file");
+             });
+}
+
+void Hdf5Precheck::checkBTree(
+    uint64_t address, int64_t cited, int type, size_t key, const std::string& index,
+    const std::function<void(const uint8_t* key, uint64_t child, int64_t at)>& leaf) const {
+  // Version 1 B-tree (section III.A.1): "TREE", type, level, entries, two sibling addresses, then
+  // key, child, key, child, ..., key. Every node and child lies inside the file; `leaf` checks
+  // what a leaf's children point at.
   const auto fail = [&](int64_t at, const std::string& problem) {
-    throwAtByte(path_, at, "chunk index of " + what + ": " + problem);
+    throwAtByte(path_, at, index + ": " + problem);
   };
   const uint64_t limit = static_cast<uint64_t>(file_size_) - base_;  // addresses are below it
   const size_t header = 8 + 2 * static_cast<size_t>(offset_bytes_);
-  const size_t key = 8 + 8 * static_cast<size_t>(rank);
   const size_t entry = key + static_cast<size_t>(offset_bytes_);
-  std::vector<uint64_t> pending = {address};
+  // Each node's address with where it was read (the message, or the parent node).
+  std::vector<std::pair<uint64_t, int64_t>> pending = {{address, cited}};
   std::set<uint64_t> seen = {address};
   std::vector<uint8_t> node;
   while (!pending.empty()) {
-    const uint64_t node_address = pending.back();
+    const auto [node_address, parent] = pending.back();
     pending.pop_back();
+    if (node_address >= limit || header > limit - node_address) {
+      fail(parent, "a node at address " + std::to_string(node_address) + " outside the file");
+    }
     const int64_t at = static_cast<int64_t>(base_ + node_address);
-    if (node_address >= limit || header > limit - node_address)
-      fail(static_cast<int64_t>(base_), "a node outside the file");
     node.resize(header);
     file_.seek(at);
     file_.readExact(node.data(), header, "a B-tree node");
-    if (std::memcmp(node.data(), "TREE", 4) != 0 || node[4] != 1)
-      fail(at, "not a chunk B-tree node");
+    if (std::memcmp(node.data(), "TREE", 4) != 0 || node[4] != type)
+      fail(at, "not a B-tree node of type " + std::to_string(type));
     const int level = node[5];
     const uint64_t entries = loadLe(&node[6], 2);
     const uint64_t bytes = header + entries * entry + key;
@@ -391,15 +431,11 @@ void Hdf5Precheck::checkChunkIndex(uint64_t address, int rank, const std::string
       const uint64_t child = loadLe(k + key, offset_bytes_);
       if (child >= limit) fail(at, "a child address outside the file");
       if (level == 0) {
-        const uint64_t stored = loadLe(k, 4);
-        if (stored > limit - child || stored > kMaxHdf5ChunkBytes) {
-          fail(at, "a chunk of " + std::to_string(stored) + " bytes at address " +
-                       std::to_string(child) + " runs past the end of the file");
-        }
+        leaf(k, child, at);
       } else {
         if (seen.size() > kMaxIndexNodes)
           fail(at, "more than " + std::to_string(kMaxIndexNodes) + " nodes");
-        if (seen.insert(child).second) pending.push_back(child);
+        if (seen.insert(child).second) pending.push_back({child, at});
       }
     }
   }

@@ -8,6 +8,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <string>
 
@@ -42,7 +43,15 @@ class Hdf5Precheck {
                      const std::string& what) const;
   void checkAttribute(const uint8_t* message, uint64_t size, int64_t at,
                       const std::string& what) const;
-  void checkChunkIndex(uint64_t address, int rank, const std::string& what) const;
+  // The B-tree at `address`, read from the message at byte `cited`.
+  void checkChunkIndex(uint64_t address, int64_t cited, int rank, const std::string& what) const;
+  void checkGroupIndex(uint64_t address, int64_t cited, const std::string& what) const;
+  // Walks the version 1 B-tree of `type` at `address` (read at byte `cited`; keys of `key` bytes)
+  // and hands each leaf's key, child address and node position to `leaf`; `index` names it in the
+  // error message.
+  void checkBTree(
+      uint64_t address, int64_t cited, int type, size_t key, const std::string& index,
+      const std::function<void(const uint8_t* key, uint64_t child, int64_t at)>& leaf) const;
 
   std::string path_;
   mutable BinaryFile file_;  // the checks read it at the offsets they need
