@@ -86,8 +86,14 @@ Hdf5Precheck::Hdf5Precheck(std::string path) : path_(std::move(path)), file_(pat
   // superblock's own position whatever the superblock states: a stated base of 4 once sent the
   // checks to other bytes than the library reads (found by fuzzing).
   base_ = static_cast<uint64_t>(at);
+  address_limit_ = static_cast<uint64_t>(file_size_) - base_;
   offset_bytes_ = offset_bytes;
   checkObjectHeader(loadLe(sb + root_field, offset_bytes), "the root group");
+}
+
+bool Hdf5Precheck::spans(uint64_t address, uint64_t length) const {
+  return !undefinedAddress(address, offset_bytes_) && address <= address_limit_ &&
+         length <= address_limit_ - address;
 }
 
 void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) const {
@@ -96,9 +102,7 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
   };
   // A chunk lies inside the file; its bytes are read (chunks are small in real files).
   const auto inFile = [&](uint64_t relative, uint64_t length, int64_t cited) -> int64_t {
-    if (undefinedAddress(relative, offset_bytes_) ||
-        relative > static_cast<uint64_t>(file_size_) - base_ ||
-        length > static_cast<uint64_t>(file_size_) - base_ - relative) {
+    if (!spans(relative, length)) {
       fail(cited, "a chunk of " + std::to_string(length) + " bytes at address " +
                       std::to_string(relative) + " lies outside the file");
     }
@@ -257,9 +261,7 @@ void Hdf5Precheck::checkLocalHeap(uint64_t address, const std::string& what) con
   };
   const size_t prefix =
       8 + 2 * static_cast<size_t>(length_bytes_) + static_cast<size_t>(offset_bytes_);
-  if (undefinedAddress(address, offset_bytes_) ||
-      address > static_cast<uint64_t>(file_size_) - base_ ||
-      prefix > static_cast<uint64_t>(file_size_) - base_ - address) {
+  if (!spans(address, prefix)) {
     fail(static_cast<int64_t>(base_),
          "address " + std::to_string(address) + " lies outside the file");
   }
@@ -270,9 +272,7 @@ void Hdf5Precheck::checkLocalHeap(uint64_t address, const std::string& what) con
   if (std::memcmp(h, "HEAP", 4) != 0) fail(at, "no HEAP signature");
   const uint64_t bytes = loadLe(h + 8, length_bytes_);
   const uint64_t segment = loadLe(h + 8 + 2 * length_bytes_, offset_bytes_);
-  if (undefinedAddress(segment, offset_bytes_) ||
-      segment > static_cast<uint64_t>(file_size_) - base_ ||
-      bytes > static_cast<uint64_t>(file_size_) - base_ - segment || bytes > kMaxHdf5ChunkBytes) {
+  if (!spans(segment, bytes) || bytes > kMaxHdf5ChunkBytes) {
     fail(at, "a data segment of " + std::to_string(bytes) + " bytes at address " +
                  std::to_string(segment) + " lies outside the file");
   }
@@ -363,12 +363,11 @@ void Hdf5Precheck::checkChunkIndex(uint64_t address, int64_t cited, int rank,
   // 8-byte offsets; its leaves' children are the chunks, which the library reads at their stored
   // size.
   if (undefinedAddress(address, offset_bytes_)) return;  // no chunk written yet
-  const uint64_t limit = static_cast<uint64_t>(file_size_) - base_;
   const std::string index = "chunk index of " + what;
   checkBTree(address, cited, kChunkNodes, 8 + 8 * static_cast<size_t>(rank), index,
              [&](const uint8_t* key, uint64_t chunk, int64_t at) {
                const uint64_t stored = loadLe(key, 4);
-               if (stored > limit - chunk || stored > kMaxHdf5ChunkBytes) {
+               if (!spans(chunk, stored) || stored > kMaxHdf5ChunkBytes) {
                  throwAtByte(path_, at,
                              index + ": a chunk of " + std::to_string(stored) +
                                  " bytes at address " + std::to_string(chunk) +
@@ -382,11 +381,10 @@ void Hdf5Precheck::checkGroupIndex(uint64_t address, int64_t cited, const std::s
   // leaves' children symbol table nodes ("SNOD", version, reserved, the symbols' count, then the
   // entries; section III.B). libhdf5 1.10.8 reads a node at any address it is given, the
   // undefined one included (a segfault inside H5Lexists, found by fuzzing).
-  const uint64_t limit = static_cast<uint64_t>(file_size_) - base_;
   const std::string index = "group index of " + what;
   checkBTree(address, cited, kGroupNodes, static_cast<size_t>(length_bytes_), index,
              [&](const uint8_t*, uint64_t node, int64_t at) {
-               if (8 > limit - node)
+               if (!spans(node, 8))
                  throwAtByte(path_, at, index + ": a symbol table node past the end of the file");
              });
 }
@@ -400,7 +398,6 @@ void Hdf5Precheck::checkBTree(
   const auto fail = [&](int64_t at, const std::string& problem) {
     throwAtByte(path_, at, index + ": " + problem);
   };
-  const uint64_t limit = static_cast<uint64_t>(file_size_) - base_;  // addresses are below it
   const size_t header = 8 + 2 * static_cast<size_t>(offset_bytes_);
   const size_t entry = key + static_cast<size_t>(offset_bytes_);
   // Each node's address with where it was read (the message, or the parent node).
@@ -410,7 +407,7 @@ void Hdf5Precheck::checkBTree(
   while (!pending.empty()) {
     const auto [node_address, parent] = pending.back();
     pending.pop_back();
-    if (node_address >= limit || header > limit - node_address) {
+    if (!spans(node_address, header)) {
       fail(parent, "a node at address " + std::to_string(node_address) + " outside the file");
     }
     const int64_t at = static_cast<int64_t>(base_ + node_address);
@@ -422,14 +419,14 @@ void Hdf5Precheck::checkBTree(
     const int level = node[5];
     const uint64_t entries = loadLe(&node[6], 2);
     const uint64_t bytes = header + entries * entry + key;
-    if (bytes > limit - node_address)
+    if (!spans(node_address, bytes))
       fail(at, std::to_string(entries) + " entries run past the end of the file");
     node.resize(bytes);
     file_.readExact(node.data() + header, bytes - header, "B-tree node entries");
     for (uint64_t i = 0; i < entries; ++i) {
       const uint8_t* k = &node[header + i * entry];
       const uint64_t child = loadLe(k + key, offset_bytes_);
-      if (child >= limit) fail(at, "a child address outside the file");
+      if (!spans(child, 1)) fail(at, "a child address outside the file");
       if (level == 0) {
         leaf(k, child, at);
       } else {

@@ -43,6 +43,8 @@ class Hdf5Precheck {
                      const std::string& what) const;
   void checkAttribute(const uint8_t* message, uint64_t size, int64_t at,
                       const std::string& what) const;
+  // Whether `length` bytes from `address` (counted from the base) lie inside the file.
+  bool spans(uint64_t address, uint64_t length) const;
   // The B-tree at `address`, read from the message at byte `cited`.
   void checkChunkIndex(uint64_t address, int64_t cited, int rank, const std::string& what) const;
   void checkGroupIndex(uint64_t address, int64_t cited, const std::string& what) const;
@@ -57,8 +59,9 @@ class Hdf5Precheck {
   mutable BinaryFile file_;  // the checks read it at the offsets they need
   int64_t file_size_ = 0;
   uint64_t base_ = 0;
-  int offset_bytes_ = 0;  // 2, 4 or 8: the width of an address
-  int length_bytes_ = 0;  // 2, 4 or 8: the width of a length
+  uint64_t address_limit_ = 0;  // file_size_ - base_: every address lies below it
+  int offset_bytes_ = 0;        // 2, 4 or 8: the width of an address
+  int length_bytes_ = 0;        // 2, 4 or 8: the width of a length
 };
 
 }  // namespace evkit::detail
