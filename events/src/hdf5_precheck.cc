@@ -128,7 +128,11 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
     if (got < static_cast<size_t>(prefix + width)) fail(at, "truncated");
     messages_bytes = loadLe(h + prefix, width);
     messages_at = at + prefix + width;
-    inFile(address + static_cast<uint64_t>(prefix + width), messages_bytes + 4, at);  // + checksum
+    // The messages, then the checksum after them: one call for both wrapped a chunk size of
+    // 2^64 - 1 to 3 bytes, which then failed an allocation (found by fuzzing).
+    const uint64_t messages = address + static_cast<uint64_t>(prefix + width);
+    inFile(messages, messages_bytes, at);
+    inFile(messages + messages_bytes, 4, at);
   } else if (got >= 16 && h[0] == 1) {
     // Version 1: version, reserved, message count, reference count, header size, padding.
     version = 1;
