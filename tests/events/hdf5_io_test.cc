@@ -182,9 +182,6 @@ TEST(Hdf5Io, ReadsTheDsecLayout) {
   EXPECT_EQ(part.events.t.front(), t0);
 }
 
-// A damaged millisecond origin: t_offset at int64's ends. The evkit layout's index is ignored (the
-// times are read and sliced by binary search); DSEC's offset that pushes a time out of int64 is one
-// error naming the event. Found by the fuzzer as a signed overflow.
 // A user block before the superblock (h5py's userblock_size, or 512 bytes prepended to a file):
 // the superblock is then found at 512, and its addresses count from there whatever base address it
 // states, as libhdf5 reads them (HDF5 file format specification, section II.A; H5F__super_read).
@@ -197,6 +194,43 @@ TEST(Hdf5Io, ReadsAFileBehindAUserBlock) {
   expectSameEvents(readRecording(dir / "behind.h5").events, rec.events);
 }
 
+// A chunk stored with its filters skipped (the chunk's filter mask; libhdf5 does this where an
+// optional filter fails) holds the chunk's bytes as they are, and reads as written. One whose
+// stored size is short of them is refused at its index: libhdf5 1.10.8 would copy the chunk's bytes
+// out of the shorter buffer (a heap overflow inside H5Dread, found by fuzzing).
+TEST(Hdf5Io, AChunkWithItsFiltersSkippedHoldsTheChunkOrIsRefused) {
+  ScratchDir dir;
+  RandomEventOptions o;
+  o.count = 3000;  // one chunk of each column
+  o.sensor = SensorSize{640, 480};
+  const EventStore ev = randomEvents(o);
+  const auto rewriteX = [&](const std::string& path, size_t bytes) {
+    writeDsec(path, ev, o.t_start_us);
+    const hid_t f = H5Fopen(path.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+    const hid_t ds = H5Dopen2(f, "events/x", H5P_DEFAULT);
+    const hsize_t origin = 0;
+    const uint32_t deflate_skipped = 1;
+    ASSERT_GE(H5Dwrite_chunk(ds, H5P_DEFAULT, deflate_skipped, &origin, bytes, ev.x.data()), 0);
+    H5Dclose(ds);
+    H5Fclose(f);
+  };
+  rewriteX(dir / "raw.h5", ev.size() * sizeof(uint16_t));
+  expectSameEvents(readRecording(dir / "raw.h5").events, ev);
+  rewriteX(dir / "short.h5", 60);
+  try {
+    readRecording(dir / "short.h5");
+    FAIL() << "a 60-byte chunk was read as 6,000";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("chunk index of 'events/x': a chunk of 60 bytes with its "
+                                         "filters skipped, for 6000 bytes"),
+              std::string::npos)
+        << e.what();
+  }
+}
+
+// A damaged millisecond origin: t_offset at int64's ends. The evkit layout's index is ignored (the
+// times are read and sliced by binary search); DSEC's offset that pushes a time out of int64 is one
+// error naming the event. Found by the fuzzer as a signed overflow.
 TEST(Hdf5Io, AMillisecondOriginAtInt64sEndsIsAnErrorOrIgnoredNotAnOverflow) {
   ScratchDir dir;
   RandomEventOptions o;
