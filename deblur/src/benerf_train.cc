@@ -33,6 +33,7 @@ using benerf_detail::Checkpoint;
 using benerf_detail::contrastFromSolves;
 using benerf_detail::ediMidFrame;
 using benerf_detail::kCountsBand;
+using benerf_detail::kHashBlur;
 using benerf_detail::kLeastContrast;
 using benerf_detail::kMostContrast;
 using benerf_detail::kMostCountsFollow;
@@ -493,18 +494,6 @@ void summarise(BenerfProblem<float>& problem, const BenerfOptions& o, int iterat
 
 // The contrast at which the grid's beta holds (the suites' C, where it was measured).
 constexpr double kBetaContrast = 0.2;
-// The share of deblurring's change (StartFit) from which the grid's misfit at the start keeps it:
-// measured on the natural, standard, noisy and hard suites (BENCHMARKS.md, "The pixel grid"), the
-// scenes where the solve ended below its start had 0.54-0.93, those where it gained 0.04-0.37.
-constexpr double kKeepStart = 0.5;
-// The blur (the grid's longest image path, px) from which a start the grid would keep is left to
-// the hash field instead. Below it the start is kept because the grid's bilinear cells cannot model
-// so short a blur, and EDI's frame is the better answer (hard_blur2: EDI 40.3 dB, the hash field
-// 31.2, the blurry frame 31.3). Above it the registered motion does not re-make the blurry frame
-// (the rgbd scenes: smooth texture registers a short motion, 11.3 px on rgbd_blur15, and their
-// height field ends at the mid frame's border), and the hash field, whose training refines its
-// own trajectory from the events, did better on 8 of 9 such scenes (BENCHMARKS.md, "A kept start").
-constexpr double kHashBlur = 5;
 
 // The fewest knots the grid's trajectory may take from its registered poses; at most two fewer
 // than the poses, so that each count is still determined with one pose left out and another to
@@ -711,6 +700,13 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     }
     const SolvedContrast found = contrastFromSolves(given, camera, fit, po, ratio, counted.c,
                                                     kCountsBand, counted_blur, o, result);
+    if (found.start_misfits) {
+      result.parameters["start_blur_misfit"] = found.start.misfit;
+      result.parameters["start_change"] = found.start.change;
+      result.parameters["start_to_hash"] = 1;
+      result.parameters["start_to_hash_in_walk"] = 1;
+      return false;
+    }
     result.parameters["contrast_at_range_end"] = found.at_end ? 1 : 0;
     if (found.at_end) return false;
     contrast = found.contrast;
@@ -812,7 +808,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   // The start is kept where the grid's model misses the blurry frame by at least half of what
   // deblurring changes (kKeepStart): there the blur term would fit the model's own error.
   const StartFit at_start = startFit(*problem, x, obs.blurry);
-  const bool misfit = at_start.misfit >= kKeepStart * at_start.change;
+  const bool misfit = at_start.misfits();
   const bool to_hash = misfit && problem->blurLength() >= kHashBlur,
              keep_start = misfit && !to_hash;
   result.parameters["start_blur_misfit"] = at_start.misfit;

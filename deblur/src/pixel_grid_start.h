@@ -22,6 +22,18 @@ Observation supportedEvents(const Observation& obs, double support_px, double bl
 // EDI's mid-exposure frame with thresholds c.
 cv::Mat ediMidFrame(const Observation& obs, const Contrast& c);
 
+// The share of deblurring's change (StartFit) from which the grid's misfit at the start keeps it:
+// measured on the natural, standard, noisy and hard suites (BENCHMARKS.md, "The pixel grid"), the
+// scenes where the solve ended below its start had 0.54-0.93, those where it gained 0.04-0.37.
+inline constexpr double kKeepStart = 0.5;
+// The blur (the grid's longest image path, px) from which a start the grid would keep is left to
+// the hash field instead. Below it the start is kept because the grid's bilinear cells cannot model
+// so short a blur, and EDI's frame is the better answer (hard_blur2: EDI 40.3 dB, the hash field
+// 31.2, the blurry frame 31.3). Above it the registered motion does not re-make the blurry frame
+// (the rgbd scenes: smooth texture registers a short motion, 11.3 px on rgbd_blur15, and their
+// height field ends at the mid frame's border), and the hash field, whose training refines its
+// own trajectory from the events, did better on 8 of 9 such scenes (BENCHMARKS.md, "A kept start").
+inline constexpr double kHashBlur = 5;
 // How well the grid's model re-makes the blurry frame from where it starts (EDI's frame on the
 // refined motion), against how much deblurring changes it: `misfit`, the RMS of the start's
 // re-blur less the blurry frame (the blur term there), and `change`, the RMS of the start's
@@ -31,6 +43,7 @@ cv::Mat ediMidFrame(const Observation& obs, const Contrast& c);
 struct StartFit {
   double misfit = 0, change = 0;
   PixelGridProblem::Terms terms;
+  bool misfits() const;  // the misfit is kKeepStart of the change or more
 };
 StartFit startFit(const PixelGridProblem& problem, const std::vector<double>& x,
                   const Frame& blurry);
@@ -70,6 +83,10 @@ inline bool refineWalkMotions(double blur_px) {
 struct SolvedContrast {
   Contrast contrast;
   bool at_end = false;  // the least at an end of [0.05, 1]
+  // Where the first candidate's start misfits (StartFit::misfits) at a blur of kHashBlur or more,
+  // the walk stops there (no contrast found), and `start` says how.
+  bool start_misfits = false;
+  StartFit start;
 };
 SolvedContrast contrastFromSolves(
     const Observation& given, const PinholeCamera& camera,
