@@ -158,11 +158,10 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
   // A compact dataset's data is in its layout message, which libhdf5 1.10.8 reads at the size the
   // dataspace and datatype give, past the message when they claim more (a heap overflow inside
   // H5Dread, found by fuzzing): the three are compared once every message is read.
-  std::optional<uint64_t> elements, element_bytes, compact_bytes;
-  int64_t compact_at = 0;
+  std::optional<uint64_t> elements, element_bytes;
   // A chunked dataset's chunks are checked against its filters, whose message may come after the
   // layout's: the layout is checked once every message is read.
-  std::vector<uint8_t> layout;
+  std::optional<std::vector<uint8_t>> layout;  // a message may be empty
   int64_t layout_at = 0;
   std::vector<int> filters;
   while (!pending.empty()) {
@@ -201,11 +200,9 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
       } else if (type == kAttribute) {
         checkAttribute(&chunk[data], size, c.at + static_cast<int64_t>(data), what);
       } else if (type == kLayout) {
-        layout.assign(chunk.begin() + static_cast<std::ptrdiff_t>(data),
-                      chunk.begin() + static_cast<std::ptrdiff_t>(data + size));
+        layout.emplace(chunk.begin() + static_cast<std::ptrdiff_t>(data),
+                       chunk.begin() + static_cast<std::ptrdiff_t>(data + size));
         layout_at = c.at + static_cast<int64_t>(data);
-        compact_bytes = compactBytes(&chunk[data], size);
-        compact_at = layout_at;
       } else if (type == kFilterPipeline) {
         filters = filterIds(&chunk[data], size, c.at + static_cast<int64_t>(data), what);
       } else if (type == kSymbolTable) {
@@ -220,10 +217,12 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
       pos = data + size;
     }
   }
-  if (!layout.empty()) checkLayout(layout.data(), layout.size(), layout_at, filters, what);
+  if (!layout) return;
+  checkLayout(layout->data(), layout->size(), layout_at, filters, what);
+  const std::optional<uint64_t> compact_bytes = compactBytes(layout->data(), layout->size());
   if (compact_bytes && elements && element_bytes &&
       (*element_bytes != 0 && *elements > *compact_bytes / *element_bytes)) {
-    throwAtByte(path_, compact_at,
+    throwAtByte(path_, layout_at,
                 "data layout of " + what + ": compact data of " + std::to_string(*compact_bytes) +
                     " bytes for " + std::to_string(*elements) + " elements of " +
                     std::to_string(*element_bytes) + " bytes");
