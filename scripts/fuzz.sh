@@ -41,6 +41,24 @@ for r in "${readers[@]}"; do mkdir -p "$seeds/$r"; done
 ASAN_OPTIONS=detect_leaks=0 "$evkit" demo --formats --events 300 --out "$work/demo" >/dev/null
 cp "$work/demo/random.txt" "$seeds/text/" 2>/dev/null || true
 [ -d "$seeds/hdf5" ] && ASAN_OPTIONS=detect_leaks=0 "$evkit" convert "$work/demo/random.txt" "$seeds/hdf5/a.h5" --compression deflate 2>/dev/null
+[ -d "$seeds/hdf5" ] && ASAN_OPTIONS=detect_leaks=0 "$evkit" convert "$work/demo/random.txt" "$seeds/hdf5/b.h5" --compression blosc-lz4 2>/dev/null
+# The other filters evkit decodes, as h5py writes them (the newest layouts and chunk indexes).
+if [ -d "$seeds/hdf5" ] && /usr/bin/python3 -c 'import h5py' 2>/dev/null; then
+  /usr/bin/python3 - "$seeds/hdf5/c.h5" <<'PY'
+import sys
+import h5py
+import numpy as np
+rng = np.random.default_rng(1)
+n = 300
+with h5py.File(sys.argv[1], "w", libver="latest") as f:
+    g = f.create_group("events")
+    g.create_dataset("t", data=np.sort(rng.integers(0, 10**5, n)), chunks=(100,), compression="gzip")
+    g.create_dataset("x", data=rng.integers(0, 346, n).astype("u2"), chunks=(128,), compression="lzf")
+    g.create_dataset("y", data=rng.integers(0, 260, n).astype("u2"), chunks=(n,), shuffle=True,
+                     compression="gzip", fletcher32=True)
+    g.create_dataset("p", data=rng.integers(0, 2, n).astype("i1") * 2 - 1)
+PY
+fi
 [ -d "$seeds/aedat4" ] && ASAN_OPTIONS=detect_leaks=0 "$evkit" convert "$work/demo/random.txt" "$seeds/aedat4/a.aedat4" 2>/dev/null
 [ -d "$seeds/aedat4" ] && ASAN_OPTIONS=detect_leaks=0 "$evkit" convert "$work/demo/random.txt" "$seeds/aedat4/z.aedat4" --compression zstd 2>/dev/null
 

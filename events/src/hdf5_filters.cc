@@ -1,144 +1,476 @@
 #include "hdf5_filters.h"
 
+#include <blosc.h>
 #include <zlib.h>
 
 #include <algorithm>
 #include <cstring>
-#include <mutex>
+#include <optional>
 
+#include "evkit/base/error.h"
 #include "hdf5_precheck.h"
 #include "hdf5_util.h"
 
 namespace evkit::detail {
 namespace {
 
-thread_local size_t t_chunk_bytes = 0;  // what a decoded chunk must hold; 0: unknown
+using Bytes = std::vector<uint8_t>;
 
-// Replaces *buf (allocated by the library) with `out` of `size` bytes.
-size_t replaceBuffer(void** buf, size_t* buf_size, void* out, size_t size, size_t capacity) {
-  H5free_memory(*buf);
-  *buf = out;
-  *buf_size = capacity;
-  return size;
+struct Filter {
+  H5Z_filter_t id = 0;
+  std::vector<unsigned> values;  // the filter's client data (cd_values)
+};
+
+constexpr H5Z_filter_t kLzfFilter = 32000;  // h5py's LZF
+
+std::string filterName(H5Z_filter_t id) {
+  switch (id) {
+    case H5Z_FILTER_DEFLATE:
+      return "deflate";
+    case H5Z_FILTER_SHUFFLE:
+      return "shuffle";
+    case H5Z_FILTER_FLETCHER32:
+      return "fletcher32";
+    case H5Z_FILTER_SZIP:
+      return "szip";
+    case H5Z_FILTER_NBIT:
+      return "nbit";
+    case H5Z_FILTER_SCALEOFFSET:
+      return "scaleoffset";
+    case 307:
+      return "bzip2";
+    case kLzfFilter:
+      return "lzf";
+    case kBloscFilter:
+      return "blosc";
+    case 32004:
+      return "lz4";
+    case 32008:
+      return "bitshuffle";
+    case 32015:
+      return "zstd";
+    default:
+      return "filter " + std::to_string(id);
+  }
 }
 
-size_t inflateChunk(size_t nbytes, size_t* buf_size, void** buf) {
-  if (t_chunk_bytes > kMaxHdf5ChunkBytes) return 0;
-  z_stream z{};
-  if (inflateInit(&z) != Z_OK) return 0;
-  // Known size: exactly that, and the stream must end there. Unknown: grow as the library does.
-  size_t capacity = t_chunk_bytes ? t_chunk_bytes : std::max<size_t>(nbytes * 4, 64);
-  auto* out = static_cast<unsigned char*>(H5allocate_memory(capacity, false));
-  if (!out) return inflateEnd(&z), 0;
-  z.next_in = static_cast<Bytef*>(*buf);
-  z.avail_in = static_cast<uInt>(nbytes);
-  int status = Z_OK;
-  while (status == Z_OK) {
-    if (z.total_out == capacity) {
-      if (t_chunk_bytes) break;  // more than a chunk: damaged
-      void* grown = H5resize_memory(out, capacity * 2);
-      if (!grown) break;
-      out = static_cast<unsigned char*>(grown);
-      capacity *= 2;
+bool decodedHere(H5Z_filter_t id) {
+  return id == H5Z_FILTER_DEFLATE || id == H5Z_FILTER_SHUFFLE || id == H5Z_FILTER_FLETCHER32 ||
+         id == static_cast<H5Z_filter_t>(kBloscFilter) || id == kLzfFilter;
+}
+
+std::vector<Filter> pipelineOf(hid_t dcpl) {
+  const int n = H5Pget_nfilters(dcpl);
+  std::vector<Filter> filters;
+  for (int i = 0; i < n; ++i) {
+    Filter f;
+    unsigned flags = 0, config = 0;
+    size_t count = 64;
+    f.values.resize(count);
+    f.id = H5Pget_filter2(dcpl, static_cast<unsigned>(i), &flags, &count, f.values.data(), 0,
+                          nullptr, &config);
+    f.values.resize(std::min<size_t>(count, 64));
+    filters.push_back(std::move(f));
+  }
+  return filters;
+}
+
+// Fletcher's checksum over 16-bit big-endian words (an odd last byte is the high byte of a
+// word), the sums reduced modulo 65535: HDF5 File Format Specification 3.0, "Fletcher32", which
+// appends it to the chunk in little-endian order.
+uint32_t fletcher32(const uint8_t* data, size_t size) {
+  uint32_t a = 0, b = 0;
+  size_t i = 0;
+  while (i + 1 < size) {
+    const size_t end = std::min(size & ~size_t{1}, i + 720);  // 360 words keep the sums in 32 bits
+    for (; i < end; i += 2) {
+      a += (uint32_t{data[i]} << 8) | data[i + 1];
+      b += a;
     }
-    z.next_out = out + z.total_out;
-    z.avail_out = static_cast<uInt>(capacity - z.total_out);
-    status = inflate(&z, Z_SYNC_FLUSH);
-    if (status == Z_OK && z.avail_in == 0 && z.avail_out != 0) break;  // input ran out early
+    a = (a & 0xffff) + (a >> 16);
+    b = (b & 0xffff) + (b >> 16);
   }
-  const size_t produced = z.total_out;
-  inflateEnd(&z);
-  if (status != Z_STREAM_END || (t_chunk_bytes && produced != t_chunk_bytes)) {
-    H5free_memory(out);
-    return 0;
+  if (size % 2) {
+    a += uint32_t{data[size - 1]} << 8;
+    b += a;
+    a = (a & 0xffff) + (a >> 16);
+    b = (b & 0xffff) + (b >> 16);
   }
-  return replaceBuffer(buf, buf_size, out, produced, capacity);
+  a = (a & 0xffff) + (a >> 16);
+  b = (b & 0xffff) + (b >> 16);
+  return (b << 16) | a;
 }
 
-size_t deflateChunk(unsigned level, size_t nbytes, size_t* buf_size, void** buf) {
-  uLongf bound = compressBound(static_cast<uLong>(nbytes));
-  auto* out = static_cast<unsigned char*>(H5allocate_memory(bound, false));
-  if (!out) return 0;
-  if (compress2(out, &bound, static_cast<const Bytef*>(*buf), static_cast<uLong>(nbytes),
-                static_cast<int>(std::min(level, 9u))) != Z_OK) {
-    H5free_memory(out);
-    return 0;
-  }
-  return replaceBuffer(buf, buf_size, out, bound, compressBound(static_cast<uLong>(nbytes)));
-}
+// Undoes a chunk's filters, checking each stage's size; `fail` throws with the chunk named.
+class ChunkDecoder {
+ public:
+  ChunkDecoder(std::vector<Filter> filters, size_t chunk_bytes, size_t element_bytes)
+      : filters_(std::move(filters)), chunk_bytes_(chunk_bytes), element_bytes_(element_bytes) {}
 
-// HDF5 filter callback for deflate (cd_values[0]: the level).
-size_t deflateFilter(unsigned flags, size_t cd_nelmts, const unsigned cd_values[], size_t nbytes,
-                     size_t* buf_size, void** buf) {
-  if (flags & H5Z_FLAG_REVERSE) return inflateChunk(nbytes, buf_size, buf);
-  return deflateChunk(cd_nelmts > 0 ? cd_values[0] : 6, nbytes, buf_size, buf);
-}
-
-// HDF5 filter callback for the byte shuffle (cd_values[0]: the element size, set at creation):
-// byte b of element e goes to plane b, position e; the bytes that do not fill an element stay.
-size_t shuffleFilter(unsigned flags, size_t cd_nelmts, const unsigned cd_values[], size_t nbytes,
-                     size_t* buf_size, void** buf) {
-  if ((flags & H5Z_FLAG_REVERSE) && t_chunk_bytes && nbytes != t_chunk_bytes) return 0;
-  const size_t width = cd_nelmts > 0 ? cd_values[0] : 1;
-  if (width <= 1 || nbytes < width) return nbytes;
-  auto* out = static_cast<unsigned char*>(H5allocate_memory(nbytes, false));
-  if (!out) return 0;
-  const auto* in = static_cast<const unsigned char*>(*buf);
-  const size_t count = nbytes / width;
-  for (size_t e = 0; e < count; ++e) {
-    for (size_t b = 0; b < width; ++b) {
-      if (flags & H5Z_FLAG_REVERSE) {
-        out[e * width + b] = in[b * count + e];
-      } else {
-        out[b * count + e] = in[e * width + b];
+  // Decodes `data` in place; `skipped` is the chunk's filter mask (bit i: filter i not applied).
+  template <typename Fail>
+  void decode(Bytes& data, unsigned skipped, const Fail& fail) {
+    // Each stage's input size when the chunk was written: known up to the first compressor.
+    std::vector<std::optional<size_t>> size_before(filters_.size());
+    std::optional<size_t> size = chunk_bytes_;
+    const auto applied = [&](size_t i) { return i >= 32 || !(skipped >> i & 1u); };
+    for (size_t i = 0; i < filters_.size(); ++i) {
+      size_before[i] = size;
+      if (!applied(i)) continue;
+      const H5Z_filter_t id = filters_[i].id;
+      if (id == H5Z_FILTER_FLETCHER32 && size) {
+        *size += 4;
+      } else if (id != H5Z_FILTER_SHUFFLE) {
+        size.reset();
       }
     }
+    for (size_t i = filters_.size(); i-- > 0;) {
+      if (!applied(i)) continue;
+      const Filter& f = filters_[i];
+      switch (f.id) {
+        case H5Z_FILTER_DEFLATE:
+          inflateStage(data, size_before[i], fail);
+          break;
+        case H5Z_FILTER_SHUFFLE:
+          unshuffle(data, f.values.empty() || f.values[0] == 0 ? element_bytes_ : f.values[0]);
+          break;
+        case H5Z_FILTER_FLETCHER32:
+          checkFletcher32(data, fail);
+          break;
+        case kLzfFilter:
+          unlzf(data, size_before[i], fail);
+          break;
+        default:  // Blosc: readHyperslab lets no other filter through
+          unblosc(data, size_before[i], fail);
+          break;
+      }
+    }
+    if (data.size() != chunk_bytes_) {
+      fail("its filters undone give " + std::to_string(data.size()) + " bytes, for " +
+           std::to_string(chunk_bytes_));
+    }
   }
-  std::memcpy(out + count * width, in + count * width, nbytes - count * width);
-  return replaceBuffer(buf, buf_size, out, nbytes, nbytes);
+
+ private:
+  template <typename Fail>
+  void inflateStage(Bytes& data, std::optional<size_t> expected, const Fail& fail) {
+    z_stream z{};
+    if (inflateInit(&z) != Z_OK) fail("zlib could not start");
+    out_.resize(expected ? *expected : std::max<size_t>(data.size() * 4, 64));
+    z.next_in = data.data();
+    z.avail_in = static_cast<uInt>(data.size());
+    int status = Z_OK;
+    while (status == Z_OK) {
+      if (z.total_out == out_.size()) {
+        if (expected || out_.size() >= kMaxHdf5ChunkBytes) break;  // more than the stage holds
+        out_.resize(std::min<size_t>(out_.size() * 2, kMaxHdf5ChunkBytes));
+      }
+      z.next_out = out_.data() + z.total_out;
+      z.avail_out = static_cast<uInt>(out_.size() - z.total_out);
+      status = inflate(&z, Z_SYNC_FLUSH);
+      if (status == Z_OK && z.avail_in == 0 && z.avail_out != 0) break;  // the input ran out
+    }
+    const size_t produced = z.total_out;
+    inflateEnd(&z);
+    if (status != Z_STREAM_END) {
+      fail("its deflate stream " +
+           std::string(status == Z_OK || status == Z_BUF_ERROR ? "does not end where it should"
+                                                               : "is damaged") +
+           (expected ? " (" + std::to_string(*expected) + " bytes expected)" : ""));
+    }
+    if (expected && produced != *expected) {
+      fail("its deflate stream decodes to " + std::to_string(produced) + " bytes, for " +
+           std::to_string(*expected));
+    }
+    out_.resize(produced);
+    data.swap(out_);
+  }
+
+  // Byte b of element e was stored at plane b, position e; bytes that fill no element stay.
+  void unshuffle(Bytes& data, size_t width) {
+    if (width <= 1 || data.size() < width) return;
+    const size_t count = data.size() / width;
+    out_.resize(data.size());
+    const uint8_t* in = data.data();
+    uint8_t* out = out_.data();
+    switch (width) {  // the widths of event columns, unrolled
+      case 2:
+        gather<2>(in, count, out);
+        break;
+      case 4:
+        gather<4>(in, count, out);
+        break;
+      case 8:
+        gather<8>(in, count, out);
+        break;
+      default:
+        for (size_t e = 0; e < count; ++e) {
+          for (size_t b = 0; b < width; ++b) out[e * width + b] = in[b * count + e];
+        }
+    }
+    std::memcpy(out + count * width, in + count * width, data.size() - count * width);
+    data.swap(out_);
+  }
+
+  template <size_t kWidth>
+  static void gather(const uint8_t* in, size_t count, uint8_t* out) {
+    for (size_t e = 0; e < count; ++e) {
+      for (size_t b = 0; b < kWidth; ++b) out[e * kWidth + b] = in[b * count + e];
+    }
+  }
+
+  template <typename Fail>
+  void checkFletcher32(Bytes& data, const Fail& fail) {
+    if (data.size() < 4) fail("it is too short for its Fletcher32 checksum");
+    const size_t n = data.size() - 4;
+    const uint32_t stored = uint32_t{data[n]} | uint32_t{data[n + 1]} << 8 |
+                            uint32_t{data[n + 2]} << 16 | uint32_t{data[n + 3]} << 24;
+    const uint32_t computed = fletcher32(data.data(), n);
+    if (stored != computed) {
+      fail("its Fletcher32 checksum is " + std::to_string(stored) + ", its bytes give " +
+           std::to_string(computed));
+    }
+    data.resize(n);
+  }
+
+  template <typename Fail>
+  void unblosc(Bytes& data, std::optional<size_t> expected, const Fail& fail) {
+    size_t nbytes = 0;
+    if (blosc_cbuffer_validate(data.data(), data.size(), &nbytes) < 0) {
+      fail("its " + std::to_string(data.size()) + " bytes are not a whole Blosc buffer");
+    }
+    if ((expected && nbytes != *expected) || nbytes > kMaxHdf5ChunkBytes) {
+      fail(
+          "its Blosc buffer holds " + std::to_string(nbytes) + " bytes, for " +
+          (expected ? std::to_string(*expected) : "at most " + std::to_string(kMaxHdf5ChunkBytes)));
+    }
+    out_.resize(nbytes);
+    if (nbytes > 0 &&
+        blosc_decompress_ctx(data.data(), out_.data(), nbytes, 1) != static_cast<int>(nbytes)) {
+      fail("its Blosc buffer is damaged");
+    }
+    data.swap(out_);
+  }
+
+  // LZF (liblzf's format, as h5py writes it): a control byte below 32 starts a run of that many
+  // plus one literal bytes; above, its top 3 bits are a copy's length minus 2 (7: plus the next
+  // byte) and its low 5 bits, with the byte after the length, the copy's distance back minus 1.
+  template <typename Fail>
+  void unlzf(Bytes& data, std::optional<size_t> expected, const Fail& fail) {
+    const size_t limit = expected ? *expected : kMaxHdf5ChunkBytes;
+    out_.clear();
+    out_.reserve(std::min(limit, data.size() * 8));
+    size_t i = 0;
+    const auto damaged = [&](const std::string& what) {
+      fail("its LZF stream " + what + " at byte " + std::to_string(i) + " of " +
+           std::to_string(data.size()));
+    };
+    while (i < data.size()) {
+      const unsigned control = data[i++];
+      if (control < 32) {
+        const size_t run = control + 1;
+        if (run > data.size() - i) damaged("ends inside a literal run");
+        if (run > limit - out_.size()) damaged("decodes past " + std::to_string(limit) + " bytes");
+        out_.insert(out_.end(), data.begin() + static_cast<ptrdiff_t>(i),
+                    data.begin() + static_cast<ptrdiff_t>(i + run));
+        i += run;
+        continue;
+      }
+      size_t length = control >> 5;
+      if (length == 7) {
+        if (i >= data.size()) damaged("ends inside a copy");
+        length += data[i++];
+      }
+      length += 2;
+      if (i >= data.size()) damaged("ends inside a copy");
+      const size_t back = ((size_t{control} & 0x1f) << 8 | data[i++]) + 1;
+      if (back > out_.size()) damaged("copies from before its start");
+      if (length > limit - out_.size()) damaged("decodes past " + std::to_string(limit) + " bytes");
+      for (size_t k = 0; k < length; ++k) out_.push_back(out_[out_.size() - back]);
+    }
+    if (expected && out_.size() != *expected) {
+      fail("its LZF stream decodes to " + std::to_string(out_.size()) + " bytes, for " +
+           std::to_string(*expected));
+    }
+    data.swap(out_);
+  }
+
+  std::vector<Filter> filters_;
+  size_t chunk_bytes_;
+  size_t element_bytes_;
+  Bytes out_;  // each stage's output, swapped with its input
+};
+
+// "[a:b, c:d]": the selection [start, start + count) as Python slices.
+std::string slices(const std::vector<hsize_t>& start, const std::vector<hsize_t>& count) {
+  std::string s = "[";
+  for (size_t d = 0; d < start.size(); ++d) {
+    s += (d ? ", " : "") + std::to_string(start[d]) + ":" + std::to_string(start[d] + count[d]);
+  }
+  return s + "]";
 }
 
-// The shuffle filter needs its element size recorded when a dataset is created.
-herr_t shuffleSetLocal(hid_t dcpl, hid_t type, hid_t /*space*/) {
-  unsigned flags = 0;
-  size_t n = 1;
-  unsigned values[1] = {0};
-  if (H5Pget_filter_by_id2(dcpl, H5Z_FILTER_SHUFFLE, &flags, &n, values, 0, nullptr, nullptr) < 0)
-    return -1;
-  values[0] = static_cast<unsigned>(H5Tget_size(type));
-  return H5Pmodify_filter(dcpl, H5Z_FILTER_SHUFFLE, flags, 1, values);
+std::string coordinates(const std::vector<hsize_t>& at) {
+  std::string s = "[";
+  for (size_t d = 0; d < at.size(); ++d) s += (d ? ", " : "") + std::to_string(at[d]);
+  return s + "]";
+}
+
+// Where the selection [start, start + count) and the chunk at `origin` (dims `chunk`) overlap,
+// copies its elements of `element` bytes from the chunk's buffer into `out`.
+void copyOverlap(const uint8_t* chunk_data, const std::vector<hsize_t>& origin,
+                 const std::vector<hsize_t>& chunk, const std::vector<hsize_t>& start,
+                 const std::vector<hsize_t>& count, size_t element, uint8_t* out) {
+  const size_t rank = chunk.size();
+  std::vector<hsize_t> lo(rank), hi(rank);
+  for (size_t d = 0; d < rank; ++d) {
+    lo[d] = std::max(start[d], origin[d]);
+    hi[d] = std::min(start[d] + count[d], origin[d] + chunk[d]);
+    if (lo[d] >= hi[d]) return;
+  }
+  std::vector<hsize_t> at = lo;
+  const size_t run = static_cast<size_t>(hi[rank - 1] - lo[rank - 1]) * element;
+  while (true) {
+    size_t from = 0, to = 0;
+    for (size_t d = 0; d < rank; ++d) {
+      from = from * chunk[d] + (at[d] - origin[d]);
+      to = to * count[d] + (at[d] - start[d]);
+    }
+    std::memcpy(out + to * element, chunk_data + from * element, run);
+    size_t d = rank - 1;  // the next row: the last dimension is copied whole
+    while (d-- > 0) {
+      if (++at[d] < hi[d]) break;
+      at[d] = lo[d];
+    }
+    if (d == static_cast<size_t>(-1)) return;
+  }
 }
 
 }  // namespace
 
-void useCheckedFilters() {
-  static std::once_flag once;
-  std::call_once(once, [] {
-    static const H5Z_class2_t deflate = {
-        H5Z_CLASS_T_VERS, H5Z_FILTER_DEFLATE, 1, 1, "deflate (size-checked)", nullptr,
-        nullptr,          deflateFilter};
-    static const H5Z_class2_t shuffle = {
-        H5Z_CLASS_T_VERS, H5Z_FILTER_SHUFFLE, 1, 1, "shuffle (size-checked)", nullptr,
-        shuffleSetLocal,  shuffleFilter};
-    H5Zregister(&deflate);
-    H5Zregister(&shuffle);
-  });
-}
-
-ChunkSizeScope::ChunkSizeScope(hid_t dataset) : previous_(t_chunk_bytes) {
-  size_t bytes = 0;
-  H5Handle dcpl(H5Dget_create_plist(dataset));
-  if (dcpl && H5Pget_layout(dcpl.get()) == H5D_CHUNKED) {
-    hsize_t dims[32];
-    const int rank = H5Pget_chunk(dcpl.get(), 32, dims);
-    H5Handle type(H5Dget_type(dataset));
-    bytes = type ? H5Tget_size(type.get()) : 0;
-    for (int d = 0; d < rank; ++d) bytes *= static_cast<size_t>(dims[d]);
-    if (rank <= 0) bytes = 0;
+void readHyperslab(hid_t dataset, hid_t mem_type, const std::vector<hsize_t>& start,
+                   const std::vector<hsize_t>& count, void* out, const std::string& file,
+                   const std::string& name) {
+  const std::string what = name + slices(start, count);
+  for (const hsize_t n : count) {
+    if (n == 0) return;
   }
-  t_chunk_bytes = bytes;
-}
+  H5Handle dcpl(H5Dget_create_plist(dataset));
+  const int rank = static_cast<int>(start.size());
+  std::vector<hsize_t> chunk(start.size());
+  const bool filtered = dcpl && H5Pget_layout(dcpl.get()) == H5D_CHUNKED &&
+                        H5Pget_nfilters(dcpl.get()) > 0 &&
+                        H5Pget_chunk(dcpl.get(), rank, chunk.data()) == rank;
+  if (!filtered) {
+    H5Handle file_space(H5Dget_space(dataset));
+    H5Handle mem_space(H5Screate_simple(rank, count.data(), nullptr));
+    if (H5Sselect_hyperslab(file_space.get(), H5S_SELECT_SET, start.data(), nullptr, count.data(),
+                            nullptr) < 0 ||
+        H5Dread(dataset, mem_type, mem_space.get(), file_space.get(), H5P_DEFAULT, out) < 0) {
+      throwInFile(file, "cannot read " + what + " (truncated or corrupt file?)");
+    }
+    return;
+  }
+  std::vector<Filter> filters = pipelineOf(dcpl.get());
+  for (const Filter& f : filters) {
+    if (!decodedHere(f.id)) {
+      throwInFile(file, name + " is compressed with " + filterName(f.id) +
+                            ", which evkit does not decode (it decodes deflate, shuffle, "
+                            "fletcher32, blosc and lzf; h5repack -f GZIP=4 rewrites it)");
+    }
+  }
+  const std::vector<hsize_t> shape = datasetShape(dataset);
+  if (shape.size() != start.size()) throwInFile(file, "cannot read " + what + ": wrong rank");
+  H5Handle file_type(H5Dget_type(dataset));
+  const size_t file_bytes = file_type ? H5Tget_size(file_type.get()) : 0;
+  const size_t mem_bytes = H5Tget_size(mem_type);
+  size_t elements = 1;
+  for (const hsize_t c : chunk) {
+    if (c == 0 || __builtin_mul_overflow(elements, static_cast<size_t>(c), &elements)) elements = 0;
+  }
+  size_t chunk_bytes = 0;
+  if (file_bytes == 0 || elements == 0 ||
+      __builtin_mul_overflow(elements, std::max(file_bytes, mem_bytes), &chunk_bytes) ||
+      chunk_bytes > kMaxHdf5ChunkBytes) {
+    throwInFile(file, name + ": chunks of " + std::to_string(elements) + " elements of " +
+                          std::to_string(file_bytes) + " bytes (at most " +
+                          std::to_string(kMaxHdf5ChunkBytes) + " bytes)");
+  }
+  chunk_bytes = elements * file_bytes;
+  unsigned opts = 0;
+  H5Pget_chunk_opts(dcpl.get(), &opts);
+  const bool edges_unfiltered = opts & H5D_CHUNK_DONT_FILTER_PARTIAL_CHUNKS;
+  ChunkDecoder decoder(std::move(filters), chunk_bytes, file_bytes);
+  hsize_t base = 0;  // chunk addresses count from the end of the user block
+  {
+    H5Handle f(H5Iget_file_id(dataset));
+    H5Handle fcpl(f ? H5Fget_create_plist(f.get()) : H5I_INVALID_HID);
+    if (fcpl) H5Pget_userblock(fcpl.get(), &base);
+  }
 
-ChunkSizeScope::~ChunkSizeScope() { t_chunk_bytes = previous_; }
+  std::vector<hsize_t> first(start.size()), last(start.size()), at(start.size());
+  for (size_t d = 0; d < start.size(); ++d) {
+    if (start[d] + count[d] > shape[d]) throwInFile(file, "cannot read " + what + ": past its end");
+    first[d] = start[d] / chunk[d];
+    last[d] = (start[d] + count[d] - 1) / chunk[d];
+  }
+  at = first;
+  Bytes data, fill(mem_bytes);
+  bool fill_read = false;
+  std::vector<hsize_t> origin(start.size());
+  while (true) {
+    bool partial = false;
+    for (size_t d = 0; d < start.size(); ++d) {
+      origin[d] = at[d] * chunk[d];
+      partial = partial || origin[d] + chunk[d] > shape[d];
+    }
+    unsigned skipped = 0;
+    haddr_t address = HADDR_UNDEF;
+    hsize_t stored = 0;
+    const bool indexed =
+        H5Dget_chunk_info_by_coord(dataset, origin.data(), &skipped, &address, &stored) >= 0;
+    const auto fail = [&](const std::string& problem) {
+      const std::string where = name + ", chunk at " + coordinates(origin) + ": " + problem;
+      if (address == HADDR_UNDEF) throwInFile(file, where);
+      throwAtByte(file, static_cast<int64_t>(address + base), where);
+    };
+    if (!indexed) fail("cannot find it in the chunk index");
+    if (address == HADDR_UNDEF) {  // never written: the fill value
+      if (!fill_read && H5Pget_fill_value(dcpl.get(), mem_type, fill.data()) < 0) {
+        std::fill(fill.begin(), fill.end(), 0);
+      }
+      fill_read = true;
+      data.resize(elements * mem_bytes);
+      for (size_t e = 0; e < elements; ++e) {
+        std::memcpy(data.data() + e * mem_bytes, fill.data(), mem_bytes);
+      }
+    } else {
+      if (stored > kMaxHdf5ChunkBytes) fail(std::to_string(stored) + " bytes stored");
+      data.resize(stored);
+      if (H5Dread_chunk(dataset, H5P_DEFAULT, origin.data(), &skipped, data.data()) < 0) {
+        fail("cannot read its " + std::to_string(stored) + " bytes (truncated file?)");
+      }
+      if (partial && edges_unfiltered) {
+        if (data.size() != chunk_bytes) {
+          fail(std::to_string(data.size()) + " bytes unfiltered, for " +
+               std::to_string(chunk_bytes));
+        }
+      } else {
+        decoder.decode(data, skipped, fail);
+      }
+      data.resize(elements * std::max(file_bytes, mem_bytes));
+      if (H5Tconvert(file_type.get(), mem_type, elements, data.data(), nullptr, H5P_DEFAULT) < 0) {
+        fail("cannot convert its values");
+      }
+    }
+    copyOverlap(data.data(), origin, chunk, start, count, mem_bytes, static_cast<uint8_t*>(out));
+    size_t d = start.size();
+    while (d-- > 0) {
+      if (at[d]++ < last[d]) break;
+      at[d] = first[d];
+    }
+    if (d == static_cast<size_t>(-1)) return;
+  }
+}
 
 }  // namespace evkit::detail

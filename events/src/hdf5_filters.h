@@ -1,33 +1,30 @@
-// Size-checked replacements for HDF5's built-in deflate and shuffle filters.
+// Reads of HDF5 datasets, with the chunks of a filtered dataset decoded by evkit.
 //
-// libhdf5 1.10.8 copies a whole chunk out of whatever its filter pipeline returns: a damaged
-// deflate stream that inflates to 11 bytes, in a dataset of 2,048-byte chunks, makes it read
-// 2,037 bytes past the end of a heap buffer (found by fuzzing). The library's filters do not know
-// the chunk's size; these do: the reader states it (ChunkSizeScope) around each read, and a stream
-// that decodes to any other size is an error, never a short buffer. Writing is unchanged (the
-// same zlib stream and byte shuffle), so files stay readable by every HDF5 build.
+// libhdf5 1.10.8 copies a whole chunk out of whatever its filter pipeline returns, and its
+// built-in filters trust the sizes a file states: a damaged deflate stream that inflates to 11
+// bytes, in a dataset of 2,048-byte chunks, makes it read 2,037 bytes past a heap buffer, and a
+// scale-offset chunk of 21 bytes that claims full precision makes the filter itself copy 6,000
+// bytes out of it. The built-in filters cannot be replaced (H5Zregister refuses "predefined
+// filters"), so evkit reads each stored chunk as it is (H5Dread_chunk) and undoes the filters
+// itself, checking every stage's size: a chunk decodes to exactly its chunk's bytes or is an
+// error naming the dataset, the chunk and what was expected.
+//
+// Decoded here: deflate, shuffle, Fletcher32 (verified) and Blosc (libblosc, every compressor of
+// Debian's build). Any other filter (szip, nbit, scale-offset, third-party plugins) is refused with
+// its name: libhdf5's decoders for them are not safe on a damaged file.
 #pragma once
 
 #include <hdf5.h>
 
-#include <cstddef>
+#include <string>
+#include <vector>
 
 namespace evkit::detail {
 
-// Registers the checked filters in place of the built-in ones (once per process).
-void useCheckedFilters();
-
-// While alive, the filters on this thread expect chunks of the dataset's chunk size in bytes
-// (its chunk dimensions times its element size); 0 (not chunked) disables the check.
-class ChunkSizeScope {
- public:
-  explicit ChunkSizeScope(hid_t dataset);
-  ~ChunkSizeScope();
-  ChunkSizeScope(const ChunkSizeScope&) = delete;
-  ChunkSizeScope& operator=(const ChunkSizeScope&) = delete;
-
- private:
-  size_t previous_;
-};
+// Reads the hyperslab [start, start + count) of `dataset` (rank = start.size()) into `out`, in C
+// order, converted to `mem_type`. Throws evkit::Error "FILE: NAME ..." when it cannot.
+void readHyperslab(hid_t dataset, hid_t mem_type, const std::vector<hsize_t>& start,
+                   const std::vector<hsize_t>& count, void* out, const std::string& file,
+                   const std::string& name);
 
 }  // namespace evkit::detail

@@ -36,7 +36,6 @@ namespace fs = std::filesystem;
 
 namespace {
 
-constexpr size_t kChunkCacheBytes = size_t{32} << 20;
 constexpr hsize_t kMaxFrames = 1'000'000;  // 14 h at 20 fps, 17 min at 1 kHz
 
 enum class Layout { kEvkit, kDsec, kEventUtils };
@@ -44,16 +43,7 @@ enum class Layout { kEvkit, kDsec, kEventUtils };
 H5Handle openDataset(hid_t file, const std::string& name, const std::string& path) {
   H5Handle ds(H5Dopen2(file, name.c_str(), H5P_DEFAULT));
   if (!ds) throwInFile(path, "cannot open dataset '" + name + "'");
-  // Filtered (compressed) chunks are decoded through a chunk cache large enough for a read's
-  // slice; unfiltered ones are read straight into the caller's buffer, with no cache to copy
-  // through (as h5py's whole-dataset reads do).
-  H5Handle dcpl(H5Dget_create_plist(ds.get()));
-  if (dcpl && H5Pget_nfilters(dcpl.get()) == 0) return ds;
-  H5Handle dapl(H5Pcreate(H5P_DATASET_ACCESS));
-  H5Pset_chunk_cache(dapl.get(), 521, kChunkCacheBytes, 1.0);
-  H5Handle cached(H5Dopen2(file, name.c_str(), dapl.get()));
-  if (!cached) throwInFile(path, "cannot open dataset '" + name + "'");
-  return cached;
+  return ds;
 }
 
 class Hdf5Reader final : public EventReader {
@@ -71,7 +61,6 @@ class Hdf5Reader final : public EventReader {
 
   explicit Hdf5Reader(std::string path) : path_(std::move(path)), precheck_(path_) {
     silenceHdf5Errors();
-    useCheckedFilters();
     file_ = H5Handle(H5Fopen(path_.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT));
     if (!file_) throwAtByte(path_, 0, "not a readable HDF5 file (corrupt or truncated?)");
     info_.format = Format::kHdf5;
@@ -191,10 +180,12 @@ class Hdf5Reader final : public EventReader {
     }
     if (layout_ == Layout::kDsec) {
       H5Handle off = open("t_offset");
-      const ChunkSizeScope chunk_size(off.get());
-      if (H5Dread(off.get(), H5T_NATIVE_INT64, H5S_ALL, H5S_ALL, H5P_DEFAULT, &t_offset_dsec_) <
-          0) {
-        throwInFile(path_, "cannot read t_offset");
+      const auto shape = datasetShape(off.get());
+      if (shape.size() == 1 && shape[0] == 1) {  // (1,) rather than a scalar: maybe chunked
+        readRange(off.get(), H5T_NATIVE_INT64, 0, 1, &t_offset_dsec_, path_, "t_offset");
+      } else if (!shape.empty() || H5Dread(off.get(), H5T_NATIVE_INT64, H5S_ALL, H5S_ALL,
+                                           H5P_DEFAULT, &t_offset_dsec_) < 0) {
+        throwInFile(path_, "cannot read t_offset (expected one integer)");
       }
     }
   }
@@ -362,19 +353,11 @@ class Hdf5Reader final : public EventReader {
       const int h = static_cast<int>(frame_shape_[1]), w = static_cast<int>(frame_shape_[2]);
       const int c = frame_shape_.size() == 4 ? 3 : 1;
       raw.create(h, w, CV_MAKETYPE(frame_bits_ == 16 ? CV_16U : CV_8U, c));
-      H5Handle file_space(H5Dget_space(images_.get()));
       std::vector<hsize_t> start(frame_shape_.size(), 0), count = frame_shape_;
       start[0] = i;
       count[0] = 1;
-      H5Handle mem_space(H5Screate_simple(static_cast<int>(count.size()), count.data(), nullptr));
-      H5Sselect_hyperslab(file_space.get(), H5S_SELECT_SET, start.data(), nullptr, count.data(),
-                          nullptr);
-      const ChunkSizeScope chunk_size(images_.get());
-      if (H5Dread(images_.get(), frame_bits_ == 16 ? H5T_NATIVE_UINT16 : H5T_NATIVE_UINT8,
-                  mem_space.get(), file_space.get(), H5P_DEFAULT, raw.data) < 0) {
-        throwInFile(path_,
-                    "cannot read frames/images[" + std::to_string(i) + "] (truncated or corrupt?)");
-      }
+      readHyperslab(images_.get(), frame_bits_ == 16 ? H5T_NATIVE_UINT16 : H5T_NATIVE_UINT8, start,
+                    count, raw.data, path_, "frames/images");
       if (c == 3) cv::cvtColor(raw, raw, cv::COLOR_RGB2BGR);
     } else {
       const std::string& name = event_utils_images_[i].second;
@@ -388,11 +371,8 @@ class Hdf5Reader final : public EventReader {
       const bool wide = H5Tget_size(type.get()) >= 2;
       raw.create(static_cast<int>(shape[0]), static_cast<int>(shape[1]),
                  CV_MAKETYPE(wide ? CV_16U : CV_8U, shape.size() == 3 ? 3 : 1));
-      const ChunkSizeScope chunk_size(ds.get());
-      if (H5Dread(ds.get(), wide ? H5T_NATIVE_UINT16 : H5T_NATIVE_UINT8, H5S_ALL, H5S_ALL,
-                  H5P_DEFAULT, raw.data) < 0) {
-        throwInFile(path_, "cannot read " + name);
-      }
+      readHyperslab(ds.get(), wide ? H5T_NATIVE_UINT16 : H5T_NATIVE_UINT8,
+                    std::vector<hsize_t>(shape.size(), 0), shape, raw.data, path_, name);
       if (raw.channels() == 3) cv::cvtColor(raw, raw, cv::COLOR_RGB2BGR);
     }
     frame.bit_depth = raw.depth() == CV_16U ? 16 : 8;

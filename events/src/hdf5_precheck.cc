@@ -17,13 +17,11 @@ constexpr int kContinuation = 0x10;  // object header message types
 constexpr int kDataspace = 0x01;
 constexpr int kDatatype = 0x03;
 constexpr int kLayout = 0x08;
-constexpr int kFilterPipeline = 0x0b;
 constexpr int kAttribute = 0x0c;
 constexpr int kVariableLength = 9;  // datatype class
 constexpr int kSymbolTable = 0x11;
 constexpr int kCompactLayout = 0;
 constexpr int kChunkedLayout = 2;
-constexpr int kFletcher32 = 3;                   // filter identification values
 constexpr size_t kMaxChunks = 4096;              // object header chunks of one object
 constexpr size_t kMaxIndexNodes = 1 << 16;       // nodes of one B-tree
 constexpr int kGroupNodes = 0, kChunkNodes = 1;  // version 1 B-tree node types
@@ -159,11 +157,8 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
   // dataspace and datatype give, past the message when they claim more (a heap overflow inside
   // H5Dread, found by fuzzing): the three are compared once every message is read.
   std::optional<uint64_t> elements, element_bytes;
-  // A chunked dataset's chunks are checked against its filters, whose message may come after the
-  // layout's: the layout is checked once every message is read.
   std::optional<std::vector<uint8_t>> layout;  // a message may be empty
   int64_t layout_at = 0;
-  std::vector<int> filters;
   while (!pending.empty()) {
     const Chunk c = pending.back();
     pending.pop_back();
@@ -203,8 +198,6 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
         layout.emplace(chunk.begin() + static_cast<std::ptrdiff_t>(data),
                        chunk.begin() + static_cast<std::ptrdiff_t>(data + size));
         layout_at = c.at + static_cast<int64_t>(data);
-      } else if (type == kFilterPipeline) {
-        filters = filterIds(&chunk[data], size, c.at + static_cast<int64_t>(data), what);
       } else if (type == kSymbolTable) {
         // An old-style group: a B-tree of symbol nodes and the local heap of their names; the
         // library loads the heap's data segment at its stated size.
@@ -218,7 +211,7 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
     }
   }
   if (!layout) return;
-  checkLayout(layout->data(), layout->size(), layout_at, filters, what);
+  checkLayout(layout->data(), layout->size(), layout_at, what);
   const std::optional<uint64_t> compact_bytes = compactBytes(layout->data(), layout->size());
   if (compact_bytes && elements && element_bytes &&
       (*element_bytes != 0 && *elements > *compact_bytes / *element_bytes)) {
@@ -319,38 +312,8 @@ void Hdf5Precheck::checkLocalHeap(uint64_t address, const std::string& what) con
   }
 }
 
-std::vector<int> Hdf5Precheck::filterIds(const uint8_t* m, uint64_t size, int64_t at,
-                                         const std::string& what) const {
-  // Filter pipeline message, section IV.A.2.l: version, the filters' count, [v1: 6 reserved bytes],
-  // then each filter: its identification value (2 bytes), [its name's length (2): v1, or v2 from
-  // 256], flags (2), the client data's count (2), [the name: v1 padded to 8 bytes], the client
-  // data (4 bytes each), [v1: 4 bytes of padding after an odd count].
-  const auto fail = [&](const std::string& problem) {
-    throwAtByte(path_, at, "filter pipeline of " + what + ": " + problem);
-  };
-  if (size < 2) fail("truncated");
-  const int version = m[0];
-  if (version != 1 && version != 2) fail("unknown version " + std::to_string(version));
-  std::vector<int> ids;
-  uint64_t pos = version == 1 ? 8 : 2;
-  for (int f = 0; f < m[1]; ++f) {
-    if (pos + 2 > size) fail("truncated");
-    const int id = static_cast<int>(loadLe(m + pos, 2));
-    const bool named = version == 1 || id >= 256;
-    const uint64_t fields = named ? 8 : 6;
-    if (pos + fields > size) fail("truncated");
-    const uint64_t name = named ? loadLe(m + pos + 2, 2) : 0;
-    const uint64_t values = loadLe(m + pos + fields - 2, 2);
-    const uint64_t name_bytes = version == 1 ? (name + 7) / 8 * 8 : name;
-    pos += fields + name_bytes + 4 * values + (version == 1 && values % 2 == 1 ? 4 : 0);
-    if (pos > size) fail("truncated");
-    ids.push_back(id);
-  }
-  return ids;
-}
-
 void Hdf5Precheck::checkLayout(const uint8_t* m, uint64_t size, int64_t at,
-                               const std::vector<int>& filters, const std::string& what) const {
+                               const std::string& what) const {
   // A chunked dataset's chunk dimensions divide in the library: a zero one is a SIGFPE there.
   // Data layout message, section IV.A.2.i: versions 1-2 (dimensionality, class, 5 reserved bytes,
   // an address unless compact, 4-byte dimensions), 3 (class, dimensionality, address, 4-byte
@@ -398,20 +361,15 @@ void Hdf5Precheck::checkLayout(const uint8_t* m, uint64_t size, int64_t at,
   if (version <= 3) {
     const size_t address_at = version == 3 ? 3 : 8;
     checkChunkIndex(loadLe(m + address_at, offset_bytes_), at + static_cast<int64_t>(address_at),
-                    rank, bytes, filters, what);
+                    rank, what);
   }
 }
 
-void Hdf5Precheck::checkChunkIndex(uint64_t address, int64_t cited, int rank, uint64_t chunk_bytes,
-                                   const std::vector<int>& filters, const std::string& what) const {
+void Hdf5Precheck::checkChunkIndex(uint64_t address, int64_t cited, int rank,
+                                   const std::string& what) const {
   // A chunk B-tree's keys hold the chunk's stored size (4 bytes), its filter mask (4) and `rank`
   // 8-byte offsets; its leaves' children are the chunks, which the library reads at their stored
-  // size. Where the dataset has filters, libhdf5 1.10.8 reads a chunk into a buffer of its stored
-  // size, undoes the filters that the mask does not skip, and copies the chunk's bytes out of the
-  // result without checking its size. evkit's deflate and shuffle check it (hdf5_filters.cc); a
-  // chunk that skips them all, or has only Fletcher32's checksum (4 bytes) to strip, must hold the
-  // chunk itself: 73 bytes with every filter skipped were read as 600 (a heap overflow inside
-  // H5Dread, found by fuzzing).
+  // size. What a filtered chunk decodes to is checked where evkit decodes it (hdf5_filters.h).
   if (undefinedAddress(address, offset_bytes_)) return;  // no chunk written yet
   const std::string index = "chunk index of " + what;
   checkBTree(address, cited, kChunkNodes, 8 + 8 * static_cast<size_t>(rank), index,
@@ -422,20 +380,6 @@ void Hdf5Precheck::checkChunkIndex(uint64_t address, int64_t cited, int rank, ui
                              index + ": a chunk of " + std::to_string(stored) +
                                  " bytes at address " + std::to_string(chunk) +
                                  " runs past the end of the file");
-               }
-               if (filters.empty()) return;
-               const uint64_t mask = loadLe(key + 4, 4);
-               uint64_t stripped = 0;  // what the filters undone take off without a check
-               for (size_t f = 0; f < filters.size(); ++f) {
-                 if (f < 32 && (mask >> f) & 1) continue;  // skipped
-                 if (filters[f] != kFletcher32) return;    // a filter that sizes its own output
-                 stripped += 4;
-               }
-               if (stored < chunk_bytes + stripped) {
-                 throwAtByte(path_, at,
-                             index + ": a chunk of " + std::to_string(stored) +
-                                 " bytes with its filters skipped, for " +
-                                 std::to_string(chunk_bytes) + " bytes of data");
                }
              });
 }

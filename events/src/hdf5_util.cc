@@ -105,15 +105,7 @@ std::vector<hsize_t> datasetShape(hid_t dataset) {
 
 void readRange(hid_t dataset, hid_t mem_type, hsize_t begin, hsize_t count, void* out,
                const std::string& file, const std::string& name) {
-  if (count == 0) return;
-  const ChunkSizeScope chunk_size(dataset);
-  H5Handle file_space(H5Dget_space(dataset));
-  H5Handle mem_space(H5Screate_simple(1, &count, nullptr));
-  if (H5Sselect_hyperslab(file_space.get(), H5S_SELECT_SET, &begin, nullptr, &count, nullptr) < 0 ||
-      H5Dread(dataset, mem_type, mem_space.get(), file_space.get(), H5P_DEFAULT, out) < 0) {
-    throwInFile(file, "cannot read " + name + "[" + std::to_string(begin) + ":" +
-                          std::to_string(begin + count) + "] (truncated or corrupt file?)");
-  }
+  readHyperslab(dataset, mem_type, {begin}, {count}, out, file, name);
 }
 
 }  // namespace evkit::detail

@@ -10,7 +10,6 @@
 #include "evkit/events/atomic_file.h"
 #include "evkit/events/image_io.h"
 #include "formats.h"
-#include "hdf5_filters.h"
 #include "hdf5_precheck.h"
 #include "hdf5_util.h"
 
@@ -59,7 +58,6 @@ class Hdf5Writer final : public EventWriter {
   Hdf5Writer(const std::string& path, SensorSize sensor, const WriterOptions& options)
       : out_(path), sensor_(sensor), options_(options), buffer_(sensor) {
     silenceHdf5Errors();
-    useCheckedFilters();  // the same streams as the built-in filters: round trips test them
     file_ =
         H5Handle(H5Fcreate(out_.temporaryPath().c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT));
     if (!file_) throwInFile(path, "cannot create HDF5 file");

@@ -1,5 +1,8 @@
 #include <gtest/gtest.h>
 #include <hdf5.h>
+#include <zlib.h>
+
+#include <functional>
 
 #include "evkit/base/error.h"
 #include "evkit/events/io.h"
@@ -118,8 +121,10 @@ TEST(Hdf5Io, FramesRoundTripWithExposureAndBitDepth) {
 }
 
 // Writes a DSEC-style file: events/{t uint32 relative, x, y uint16, p uint8 0/1}, ms_to_idx,
-// t_offset.
-void writeDsec(const std::string& path, const EventStore& ev, int64_t t_offset) {
+// t_offset; `filters` sets each chunked dataset's filters (by default deflate).
+void writeDsec(
+    const std::string& path, const EventStore& ev, int64_t t_offset,
+    const std::function<void(hid_t dcpl)>& filters = [](hid_t dcpl) { H5Pset_deflate(dcpl, 4); }) {
   const hid_t f = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
   const hid_t g = H5Gcreate2(f, "events", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
   const hsize_t n = ev.size();
@@ -136,7 +141,7 @@ void writeDsec(const std::string& path, const EventStore& ev, int64_t t_offset) 
     if (count > 0) {
       const hsize_t chunk = std::min<hsize_t>(count, 4096);
       H5Pset_chunk(dcpl, 1, &chunk);
-      H5Pset_deflate(dcpl, 4);
+      filters(dcpl);
     }
     const hid_t ds = H5Dcreate2(loc, name, file_type, space, H5P_DEFAULT, dcpl, H5P_DEFAULT);
     H5Dwrite(ds, mem_type, H5S_ALL, H5S_ALL, H5P_DEFAULT, data);
@@ -196,8 +201,8 @@ TEST(Hdf5Io, ReadsAFileBehindAUserBlock) {
 
 // A chunk stored with its filters skipped (the chunk's filter mask; libhdf5 does this where an
 // optional filter fails) holds the chunk's bytes as they are, and reads as written. One whose
-// stored size is short of them is refused at its index: libhdf5 1.10.8 would copy the chunk's bytes
-// out of the shorter buffer (a heap overflow inside H5Dread, found by fuzzing).
+// stored size is short of them is refused: libhdf5 1.10.8 copied the chunk's bytes out of the
+// shorter buffer (a heap overflow inside H5Dread, found by fuzzing).
 TEST(Hdf5Io, AChunkWithItsFiltersSkippedHoldsTheChunkOrIsRefused) {
   ScratchDir dir;
   RandomEventOptions o;
@@ -221,10 +226,192 @@ TEST(Hdf5Io, AChunkWithItsFiltersSkippedHoldsTheChunkOrIsRefused) {
     readRecording(dir / "short.h5");
     FAIL() << "a 60-byte chunk was read as 6,000";
   } catch (const Error& e) {
-    EXPECT_NE(std::string(e.what()).find("chunk index of 'events/x': a chunk of 60 bytes with its "
-                                         "filters skipped, for 6000 bytes"),
+    EXPECT_NE(std::string(e.what()).find(
+                  "events/x, chunk at [0]: its filters undone give 60 bytes, for 6000"),
               std::string::npos)
         << e.what();
+  }
+}
+
+// Stores `bytes` as the first chunk of `dataset`, with filter mask `skipped`, as a file's writer
+// could have.
+void replaceFirstChunk(const std::string& path, const char* dataset,
+                       const std::vector<uint8_t>& bytes, uint32_t skipped = 0) {
+  const hid_t f = H5Fopen(path.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+  const hid_t ds = H5Dopen2(f, dataset, H5P_DEFAULT);
+  const hsize_t origin[2] = {0, 0};
+  ASSERT_GE(H5Dwrite_chunk(ds, H5P_DEFAULT, skipped, origin, bytes.size(), bytes.data()), 0);
+  H5Dclose(ds);
+  H5Fclose(f);
+}
+
+std::vector<uint8_t> firstChunk(const std::string& path, const char* dataset) {
+  const hid_t f = H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+  const hid_t ds = H5Dopen2(f, dataset, H5P_DEFAULT);
+  const hsize_t origin[2] = {0, 0};
+  hsize_t size = 0;
+  H5Dget_chunk_storage_size(ds, origin, &size);
+  std::vector<uint8_t> bytes(size);
+  uint32_t skipped = 0;
+  H5Dread_chunk(ds, H5P_DEFAULT, origin, &skipped, bytes.data());
+  H5Dclose(ds);
+  H5Fclose(f);
+  return bytes;
+}
+
+void expectRefused(const std::string& path, const std::string& message) {
+  try {
+    readRecording(path);
+    ADD_FAILURE() << path << " was read; expected: " << message;
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find(message), std::string::npos) << e.what();
+  }
+}
+
+// evkit undoes the filters itself (libhdf5's built-in ones cannot be replaced, and copy a chunk
+// out of whatever they return): a chunk decodes to its size or is refused, naming the chunk.
+TEST(Hdf5Io, ChunksDecodeToTheirSizeOrAreRefused) {
+  ScratchDir dir;
+  RandomEventOptions o;
+  o.count = 3000;  // one chunk of each column: x's is 6000 bytes
+  o.sensor = SensorSize{640, 480};
+  const EventStore ev = randomEvents(o);
+  const auto x = reinterpret_cast<const uint8_t*>(ev.x.data());
+
+  // Shuffle, deflate and Fletcher32 together, as h5py writes them, read back event for event.
+  const std::string all = dir / "all.h5";
+  writeDsec(all, ev, o.t_start_us, [](hid_t dcpl) {
+    H5Pset_shuffle(dcpl);
+    H5Pset_deflate(dcpl, 6);
+    H5Pset_fletcher32(dcpl);
+  });
+  expectSameEvents(readRecording(all).events, ev);
+
+  // A whole deflate stream of 100 bytes where 6000 belong (read past a heap buffer before).
+  std::vector<uint8_t> stream(compressBound(100));
+  uLongf length = stream.size();
+  ASSERT_EQ(compress2(stream.data(), &length, x, 100, 6), Z_OK);
+  stream.resize(length);
+  const std::string short_deflate = dir / "short-deflate.h5";
+  writeDsec(short_deflate, ev, o.t_start_us);
+  replaceFirstChunk(short_deflate, "events/x", stream);
+  expectRefused(short_deflate,
+                "events/x, chunk at [0]: its deflate stream decodes to 100 bytes, for 6000");
+
+  // One byte changed under a Fletcher32 checksum.
+  const std::string checked = dir / "fletcher.h5";
+  writeDsec(checked, ev, o.t_start_us, [](hid_t dcpl) { H5Pset_fletcher32(dcpl); });
+  std::vector<uint8_t> chunk = firstChunk(checked, "events/x");
+  ASSERT_EQ(chunk.size(), 6004u);
+  chunk[10] ^= 0x40;
+  replaceFirstChunk(checked, "events/x", chunk);
+  expectRefused(checked, "events/x, chunk at [0]: its Fletcher32 checksum is");
+
+  // Blosc (evkit's own writer): a buffer cut in half.
+  WriterOptions blosc;
+  blosc.compression = Compression::kBloscLz4;
+  Recording rec;
+  rec.events = ev;
+  const std::string cut = dir / "blosc.h5";
+  writeRecording(cut, rec, std::nullopt, blosc);
+  chunk = firstChunk(cut, "events/x");
+  chunk.resize(chunk.size() / 2);
+  replaceFirstChunk(cut, "events/x", chunk);
+  expectRefused(cut, "events/x, chunk at [0]: its " + std::to_string(chunk.size()) +
+                         " bytes are not a whole Blosc buffer");
+
+  // A filter evkit does not decode is named, not handed to libhdf5's unchecked decoder.
+  const std::string scaled = dir / "scaleoffset.h5";
+  writeDsec(scaled, ev, o.t_start_us,
+            [](hid_t dcpl) { H5Pset_scaleoffset(dcpl, H5Z_SO_INT, H5Z_SO_INT_MINBITS_DEFAULT); });
+  expectRefused(scaled, "events/x is compressed with scaleoffset, which evkit does not decode");
+}
+
+// h5py's LZF, decoded by evkit: a stream made by hand of 4 literal bytes (x = 1, 2) and copies 4
+// bytes back, to 6000 bytes; then one whose first copy reaches before the stream's start.
+TEST(Hdf5Io, ReadsLzfChunksAndRefusesACopyFromBeforeTheStart) {
+  ScratchDir dir;
+  RandomEventOptions o;
+  o.count = 3000;
+  o.sensor = SensorSize{640, 480};
+  const EventStore ev = randomEvents(o);
+  const std::string path = dir / "lzf.h5";
+  writeDsec(path, ev, o.t_start_us,
+            [](hid_t dcpl) { H5Pset_filter(dcpl, 32000, H5Z_FLAG_OPTIONAL, 0, nullptr); });
+  std::vector<uint8_t> stream = {3, 1, 0, 2, 0};  // a literal run: x = 1, 2 (little-endian)
+  for (size_t left = 6000 - 4; left > 0;) {
+    const size_t n = std::min<size_t>(left, 264);  // a copy's length: 9 + the extra byte's 255
+    stream.insert(stream.end(), {uint8_t{0xe0}, static_cast<uint8_t>(n - 9), uint8_t{3}});
+    left -= n;
+  }
+  replaceFirstChunk(path, "events/x", stream);
+  const Recording back = readRecording(path);
+  ASSERT_EQ(back.events.size(), ev.size());
+  for (size_t i = 0; i < ev.size(); ++i) ASSERT_EQ(back.events.x[i], i % 2 ? 2 : 1) << i;
+  EXPECT_TRUE(back.events.y == ev.y);
+
+  stream[7] = 4;  // the first copy: 5 bytes back, after 4
+  replaceFirstChunk(path, "events/x", stream);
+  expectRefused(path, "events/x, chunk at [0]: its LZF stream copies from before its start");
+}
+
+// Frames chunked across frames and rows (2 x 3 x 5 chunks of 3 x 7 x 11 frames), deflated, the
+// last frame never written: its chunks are the fill value.
+TEST(Hdf5Io, FramesChunkedAcrossFramesAndRowsReadBackWithTheFillValue) {
+  ScratchDir dir;
+  Recording rec;
+  rec.events.setSensor(SensorSize{11, 7});
+  rec.events.push_back(1605537493000000, 1, 2, 1);
+  for (int i = 0; i < 3; ++i) {
+    Frame f;
+    f.image = cv::Mat(7, 11, CV_32FC1);
+    for (int r = 0; r < 7; ++r) {
+      for (int c = 0; c < 11; ++c)
+        f.image.at<float>(r, c) = static_cast<float>(i * 77 + r * 11 + c) / 255.0f;
+    }
+    f.exposure_start_us = 1605537493000000 + 40000 * i;
+    f.exposure_end_us = f.exposure_start_us + 10000;
+    f.bit_depth = 8;
+    rec.frames.push_back(f);
+  }
+  const std::string path = dir / "frames.h5";
+  writeRecording(path, rec);
+  const hid_t f = H5Fopen(path.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+  ASSERT_GE(H5Ldelete(f, "frames/images", H5P_DEFAULT), 0);
+  const hsize_t dims[3] = {3, 7, 11}, chunk[3] = {2, 3, 5}, written[3] = {2, 7, 11};
+  const hid_t dcpl = H5Pcreate(H5P_DATASET_CREATE);
+  H5Pset_chunk(dcpl, 3, chunk);
+  H5Pset_deflate(dcpl, 4);
+  const uint8_t fill = 9;
+  H5Pset_fill_value(dcpl, H5T_NATIVE_UINT8, &fill);
+  const hid_t space = H5Screate_simple(3, dims, nullptr);
+  const hid_t ds =
+      H5Dcreate2(f, "frames/images", H5T_STD_U8LE, space, H5P_DEFAULT, dcpl, H5P_DEFAULT);
+  std::vector<uint8_t> values(2 * 7 * 11);
+  for (size_t v = 0; v < values.size(); ++v) values[v] = static_cast<uint8_t>(v);
+  const hsize_t origin[3] = {0, 0, 0};
+  const hid_t file_space = H5Dget_space(ds);
+  H5Sselect_hyperslab(file_space, H5S_SELECT_SET, origin, nullptr, written, nullptr);
+  const hid_t mem_space = H5Screate_simple(3, written, nullptr);
+  ASSERT_GE(H5Dwrite(ds, H5T_NATIVE_UINT8, mem_space, file_space, H5P_DEFAULT, values.data()), 0);
+  H5Sclose(mem_space);
+  H5Sclose(file_space);
+  H5Sclose(space);
+  H5Pclose(dcpl);
+  H5Dclose(ds);
+  H5Fclose(f);
+
+  const Recording back = readRecording(path);
+  ASSERT_EQ(back.frames.size(), 3u);
+  for (int i = 0; i < 3; ++i) {
+    for (int r = 0; r < 7; ++r) {
+      for (int c = 0; c < 11; ++c) {
+        const int expected = i < 2 ? i * 77 + r * 11 + c : fill;
+        ASSERT_FLOAT_EQ(back.frames[static_cast<size_t>(i)].image.at<float>(r, c) * 255.0f,
+                        static_cast<float>(expected))
+            << i << " " << r << " " << c;
+      }
+    }
   }
 }
 
