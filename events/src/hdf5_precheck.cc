@@ -18,6 +18,7 @@ constexpr int kDataspace = 0x01;
 constexpr int kDatatype = 0x03;
 constexpr int kLayout = 0x08;
 constexpr int kAttribute = 0x0c;
+constexpr int kFilterPipeline = 0x0b;
 constexpr int kVariableLength = 9;  // datatype class
 constexpr int kSymbolTable = 0x11;
 constexpr int kCompactLayout = 0;
@@ -198,6 +199,8 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
         layout.emplace(chunk.begin() + static_cast<std::ptrdiff_t>(data),
                        chunk.begin() + static_cast<std::ptrdiff_t>(data + size));
         layout_at = c.at + static_cast<int64_t>(data);
+      } else if (type == kFilterPipeline) {
+        checkFilterPipeline(&chunk[data], size, c.at + static_cast<int64_t>(data), what);
       } else if (type == kSymbolTable) {
         // An old-style group: a B-tree of symbol nodes and the local heap of their names; the
         // library loads the heap's data segment at its stated size.
@@ -309,6 +312,41 @@ void Hdf5Precheck::checkLocalHeap(uint64_t address, const std::string& what) con
                       "-byte data segment");
     }
     block = loadLe(b, length_bytes_);
+  }
+}
+
+void Hdf5Precheck::checkFilterPipeline(const uint8_t* m, uint64_t size, int64_t at,
+                                       const std::string& what) const {
+  // Filter pipeline message, section IV.A.2.l: version, the filters' count, [v1: 6 reserved bytes],
+  // then each filter: its identification value (2 bytes), [its name's length (2): v1, or v2 from
+  // 256], flags (2), the client data's count (2), [the name, NUL-terminated: v1 padded to 8 bytes],
+  // the client data (4 bytes each), [v1: 4 bytes of padding after an odd count]. libhdf5 1.10.8
+  // decodes as many filters as the count says and takes each name's length with strlen, past the
+  // message where it runs out (a heap overflow inside H5Dopen2, found by fuzzing).
+  const auto fail = [&](const std::string& problem) {
+    throwAtByte(path_, at, "filter pipeline of " + what + ": " + problem);
+  };
+  if (size < 2) fail("truncated");
+  const int version = m[0];
+  if (version != 1 && version != 2) fail("unknown version " + std::to_string(version));
+  uint64_t pos = version == 1 ? 8 : 2;
+  for (int f = 0; f < m[1]; ++f) {
+    if (pos + 2 > size)
+      fail(std::to_string(m[1]) + " filters, truncated after " + std::to_string(f));
+    const int id = static_cast<int>(loadLe(m + pos, 2));
+    const bool named = version == 1 || id >= 256;
+    const uint64_t fields = named ? 8 : 6;
+    if (pos + fields > size)
+      fail(std::to_string(m[1]) + " filters, truncated after " + std::to_string(f));
+    const uint64_t name = named ? loadLe(m + pos + 2, 2) : 0;
+    const uint64_t values = loadLe(m + pos + fields - 2, 2);
+    const uint64_t name_bytes = version == 1 ? (name + 7) / 8 * 8 : name;
+    const uint64_t name_at = pos + fields;
+    pos = name_at + name_bytes + 4 * values + (version == 1 && values % 2 == 1 ? 4 : 0);
+    if (pos > size) fail(std::to_string(m[1]) + " filters, truncated after " + std::to_string(f));
+    if (name > 0 && std::memchr(m + name_at, 0, name) == nullptr)
+      fail("the name of filter " + std::to_string(id) + " does not end within its " +
+           std::to_string(name) + " bytes");
   }
 }
 

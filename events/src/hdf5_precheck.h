@@ -38,6 +38,8 @@ class Hdf5Precheck {
   // not a compact layout, or a dataspace too short to tell).
   std::optional<uint64_t> dataspaceElements(const uint8_t* message, uint64_t size) const;
   std::optional<uint64_t> compactBytes(const uint8_t* message, uint64_t size) const;
+  void checkFilterPipeline(const uint8_t* message, uint64_t size, int64_t at,
+                           const std::string& what) const;
   void checkLayout(const uint8_t* message, uint64_t size, int64_t at,
                    const std::string& what) const;
   void checkDatatype(const uint8_t* message, uint64_t size, int64_t at,
