@@ -473,4 +473,9 @@ void readHyperslab(hid_t dataset, hid_t mem_type, const std::vector<hsize_t>& st
   }
 }
 
+void readRange(hid_t dataset, hid_t mem_type, hsize_t begin, hsize_t count, void* out,
+               const std::string& file, const std::string& name) {
+  readHyperslab(dataset, mem_type, {begin}, {count}, out, file, name);
+}
+
 }  // namespace evkit::detail

@@ -27,4 +27,8 @@ void readHyperslab(hid_t dataset, hid_t mem_type, const std::vector<hsize_t>& st
                    const std::vector<hsize_t>& count, void* out, const std::string& file,
                    const std::string& name);
 
+// Reads elements [begin, begin + count) of a 1-D dataset, converting to mem_type.
+void readRange(hid_t dataset, hid_t mem_type, hsize_t begin, hsize_t count, void* out,
+               const std::string& file, const std::string& name);
+
 }  // namespace evkit::detail

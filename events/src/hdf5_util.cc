@@ -1,7 +1,5 @@
 #include "hdf5_util.h"
 
-#include "hdf5_filters.h"
-
 namespace evkit::detail {
 
 void H5Handle::reset() {
@@ -101,11 +99,6 @@ std::vector<hsize_t> datasetShape(hid_t dataset) {
   std::vector<hsize_t> dims(static_cast<size_t>(rank));
   H5Sget_simple_extent_dims(space.get(), dims.data(), nullptr);
   return dims;
-}
-
-void readRange(hid_t dataset, hid_t mem_type, hsize_t begin, hsize_t count, void* out,
-               const std::string& file, const std::string& name) {
-  readHyperslab(dataset, mem_type, {begin}, {count}, out, file, name);
 }
 
 }  // namespace evkit::detail

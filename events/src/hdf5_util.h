@@ -73,8 +73,4 @@ std::vector<int64_t> readIntArrayAttribute(hid_t loc, const std::string& name,
 // Dimensions of a dataset.
 std::vector<hsize_t> datasetShape(hid_t dataset);
 
-// Reads elements [begin, begin + count) of a 1-D dataset, converting to mem_type.
-void readRange(hid_t dataset, hid_t mem_type, hsize_t begin, hsize_t count, void* out,
-               const std::string& file, const std::string& name);
-
 }  // namespace evkit::detail
