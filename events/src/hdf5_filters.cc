@@ -358,9 +358,8 @@ void readHyperslab(hid_t dataset, hid_t mem_type, const std::vector<hsize_t>& st
   H5Handle dcpl(H5Dget_create_plist(dataset));
   const int rank = static_cast<int>(start.size());
   std::vector<hsize_t> chunk(start.size());
-  const bool filtered = dcpl && H5Pget_layout(dcpl.get()) == H5D_CHUNKED &&
-                        H5Pget_nfilters(dcpl.get()) > 0 &&
-                        H5Pget_chunk(dcpl.get(), rank, chunk.data()) == rank;
+  const bool filtered =
+      dcpl && H5Pget_layout(dcpl.get()) == H5D_CHUNKED && H5Pget_nfilters(dcpl.get()) != 0;
   if (!filtered) {
     H5Handle file_space(H5Dget_space(dataset));
     H5Handle mem_space(H5Screate_simple(rank, count.data(), nullptr));
@@ -380,7 +379,9 @@ void readHyperslab(hid_t dataset, hid_t mem_type, const std::vector<hsize_t>& st
     }
   }
   const std::vector<hsize_t> shape = datasetShape(dataset);
-  if (shape.size() != start.size()) throwInFile(file, "cannot read " + what + ": wrong rank");
+  if (shape.size() != start.size() || H5Pget_chunk(dcpl.get(), rank, chunk.data()) != rank) {
+    throwInFile(file, "cannot read " + what + ": its chunks are not of its rank");
+  }
   H5Handle file_type(H5Dget_type(dataset));
   const size_t file_bytes = file_type ? H5Tget_size(file_type.get()) : 0;
   const size_t mem_bytes = H5Tget_size(mem_type);
