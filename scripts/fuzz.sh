@@ -44,7 +44,7 @@ cp "$work/demo/random.txt" "$seeds/text/" 2>/dev/null || true
 [ -d "$seeds/hdf5" ] && ASAN_OPTIONS=detect_leaks=0 "$evkit" convert "$work/demo/random.txt" "$seeds/hdf5/b.h5" --compression blosc-lz4 2>/dev/null
 # The other filters evkit decodes, as h5py writes them (the newest layouts and chunk indexes).
 if [ -d "$seeds/hdf5" ] && /usr/bin/python3 -c 'import h5py' 2>/dev/null; then
-  /usr/bin/python3 - "$seeds/hdf5/c.h5" <<'PY'
+  /usr/bin/python3 - "$seeds/hdf5/c.h5" "$seeds/hdf5/d.h5" <<'PY' || echo "fuzz: h5py could not write the seed files of other filters"
 import sys
 import h5py
 import numpy as np
@@ -57,6 +57,15 @@ with h5py.File(sys.argv[1], "w", libver="latest") as f:
     g.create_dataset("y", data=rng.integers(0, 260, n).astype("u2"), chunks=(n,), shuffle=True,
                      compression="gzip", fletcher32=True)
     g.create_dataset("p", data=rng.integers(0, 2, n).astype("i1") * 2 - 1)
+with h5py.File(sys.argv[2], "w") as f:  # the plugins' filters (Debian's hdf5-filter-plugin)
+    g = f.create_group("events")
+    g.create_dataset("t", data=np.sort(rng.integers(0, 10**5, n)), chunks=(n,), compression=307)
+    g.create_dataset("x", data=rng.integers(0, 346, n).astype("u2"), chunks=(n,), compression=32004,
+                     compression_opts=(128,))
+    g.create_dataset("y", data=rng.integers(0, 260, n).astype("u2"), chunks=(n,), compression=32001,
+                     compression_opts=(0, 0, 0, 0, 5, 1, 5))
+    g.create_dataset("p", data=rng.integers(0, 2, n).astype("i1") * 2 - 1, chunks=(n,),
+                     compression=32004)
 PY
 fi
 [ -d "$seeds/aedat4" ] && ASAN_OPTIONS=detect_leaks=0 "$evkit" convert "$work/demo/random.txt" "$seeds/aedat4/a.aedat4" 2>/dev/null

@@ -1,6 +1,8 @@
 #include "hdf5_filters.h"
 
 #include <blosc.h>
+#include <bzlib.h>
+#include <lz4.h>
 #include <zlib.h>
 
 #include <algorithm>
@@ -22,6 +24,8 @@ struct Filter {
 };
 
 constexpr H5Z_filter_t kLzfFilter = 32000;  // h5py's LZF
+constexpr H5Z_filter_t kLz4Filter = 32004;  // the HDF Group's LZ4 plugin (hdf5plugin.LZ4)
+constexpr H5Z_filter_t kBzip2Filter = 307;  // the HDF Group's bzip2 plugin (hdf5plugin.BZip2)
 
 std::string filterName(H5Z_filter_t id) {
   switch (id) {
@@ -37,13 +41,13 @@ std::string filterName(H5Z_filter_t id) {
       return "nbit";
     case H5Z_FILTER_SCALEOFFSET:
       return "scaleoffset";
-    case 307:
+    case kBzip2Filter:
       return "bzip2";
     case kLzfFilter:
       return "lzf";
     case kBloscFilter:
       return "blosc";
-    case 32004:
+    case kLz4Filter:
       return "lz4";
     case 32008:
       return "bitshuffle";
@@ -56,7 +60,8 @@ std::string filterName(H5Z_filter_t id) {
 
 bool decodedHere(H5Z_filter_t id) {
   return id == H5Z_FILTER_DEFLATE || id == H5Z_FILTER_SHUFFLE || id == H5Z_FILTER_FLETCHER32 ||
-         id == static_cast<H5Z_filter_t>(kBloscFilter) || id == kLzfFilter;
+         id == static_cast<H5Z_filter_t>(kBloscFilter) || id == kLzfFilter || id == kLz4Filter ||
+         id == kBzip2Filter;
 }
 
 std::vector<Filter> pipelineOf(hid_t dcpl) {
@@ -139,6 +144,12 @@ class ChunkDecoder {
           break;
         case kLzfFilter:
           unlzf(data, size_before[i], fail);
+          break;
+        case kLz4Filter:
+          unlz4(data, size_before[i], fail);
+          break;
+        case kBzip2Filter:
+          unbzip2(data, size_before[i], fail);
           break;
         default:  // Blosc: readHyperslab lets no other filter through
           unblosc(data, size_before[i], fail);
@@ -295,6 +306,83 @@ class ChunkDecoder {
     data.swap(out_);
   }
 
+  // The LZ4 plugin's framing: the decoded size (8 bytes, big-endian) and the block size (4), then
+  // each block's stored size (4) and its bytes: LZ4 where they are fewer than the block's, else
+  // the block as it is.
+  template <typename Fail>
+  void unlz4(Bytes& data, std::optional<size_t> expected, const Fail& fail) {
+    const auto big = [&](size_t at, int bytes) {
+      uint64_t v = 0;
+      for (int b = 0; b < bytes; ++b) v = v << 8 | data[at + static_cast<size_t>(b)];
+      return v;
+    };
+    if (data.size() < 12) fail("its LZ4 header is cut short");
+    const uint64_t total = big(0, 8), block = big(8, 4);
+    if ((expected && total != *expected) || total > kMaxHdf5ChunkBytes) {
+      fail(
+          "its LZ4 header states " + std::to_string(total) + " bytes, for " +
+          (expected ? std::to_string(*expected) : "at most " + std::to_string(kMaxHdf5ChunkBytes)));
+    }
+    if (block == 0 && total > 0) fail("its LZ4 header states blocks of 0 bytes");
+    out_.resize(total);
+    size_t at = 12;
+    for (size_t done = 0; done < total;) {
+      const size_t want = std::min<size_t>(block, total - done);
+      if (data.size() - at < 4) fail("its LZ4 blocks end at byte " + std::to_string(at));
+      const size_t stored = big(at, 4);
+      at += 4;
+      if (stored > data.size() - at) {
+        fail("its LZ4 block at byte " + std::to_string(at - 4) + " states " +
+             std::to_string(stored) + " bytes, past the chunk's end");
+      }
+      if (stored == want) {
+        std::memcpy(out_.data() + done, data.data() + at, want);
+      } else if (LZ4_decompress_safe(reinterpret_cast<const char*>(data.data() + at),
+                                     reinterpret_cast<char*>(out_.data() + done),
+                                     static_cast<int>(stored),
+                                     static_cast<int>(want)) != static_cast<int>(want)) {
+        fail("its LZ4 block at byte " + std::to_string(at - 4) + " does not decode to " +
+             std::to_string(want) + " bytes");
+      }
+      at += stored;
+      done += want;
+    }
+    data.swap(out_);
+  }
+
+  template <typename Fail>
+  void unbzip2(Bytes& data, std::optional<size_t> expected, const Fail& fail) {
+    bz_stream z{};
+    if (BZ2_bzDecompressInit(&z, 0, 0) != BZ_OK) fail("bzip2 could not start");
+    out_.resize(expected ? *expected : std::max<size_t>(data.size() * 4, 64));
+    z.next_in = reinterpret_cast<char*>(data.data());
+    z.avail_in = static_cast<unsigned>(data.size());
+    size_t produced = 0;
+    int status = BZ_OK;
+    while (status == BZ_OK) {
+      if (produced == out_.size()) {
+        if (expected || out_.size() >= kMaxHdf5ChunkBytes) break;  // more than the stage holds
+        out_.resize(std::min<size_t>(out_.size() * 2, kMaxHdf5ChunkBytes));
+      }
+      z.next_out = reinterpret_cast<char*>(out_.data() + produced);
+      z.avail_out = static_cast<unsigned>(out_.size() - produced);
+      status = BZ2_bzDecompress(&z);
+      produced = out_.size() - z.avail_out;
+      if (status == BZ_OK && z.avail_in == 0 && z.avail_out != 0) break;  // the input ran out
+    }
+    BZ2_bzDecompressEnd(&z);
+    if (status != BZ_STREAM_END) {
+      fail("its bzip2 stream " +
+           std::string(status == BZ_OK ? "does not end where it should" : "is damaged"));
+    }
+    if (expected && produced != *expected) {
+      fail("its bzip2 stream decodes to " + std::to_string(produced) + " bytes, for " +
+           std::to_string(*expected));
+    }
+    out_.resize(produced);
+    data.swap(out_);
+  }
+
   std::vector<Filter> filters_;
   size_t chunk_bytes_;
   size_t element_bytes_;
@@ -375,7 +463,8 @@ void readHyperslab(hid_t dataset, hid_t mem_type, const std::vector<hsize_t>& st
     if (!decodedHere(f.id)) {
       throwInFile(file, name + " is compressed with " + filterName(f.id) +
                             ", which evkit does not decode (it decodes deflate, shuffle, "
-                            "fletcher32, blosc and lzf; h5repack -f GZIP=4 rewrites it)");
+                            "fletcher32, blosc, lzf, lz4 and bzip2; h5repack -f GZIP=4 "
+                            "rewrites it)");
     }
   }
   const std::vector<hsize_t> shape = datasetShape(dataset);

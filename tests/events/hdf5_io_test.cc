@@ -1,5 +1,7 @@
+#include <bzlib.h>
 #include <gtest/gtest.h>
 #include <hdf5.h>
+#include <lz4.h>
 #include <zlib.h>
 
 #include <functional>
@@ -353,6 +355,68 @@ TEST(Hdf5Io, ReadsLzfChunksAndRefusesACopyFromBeforeTheStart) {
   stream[7] = 4;  // the first copy: 5 bytes back, after 4
   replaceFirstChunk(path, "events/x", stream);
   expectRefused(path, "events/x, chunk at [0]: its LZF stream copies from before its start");
+}
+
+// The LZ4 and bzip2 plugins' chunks (hdf5plugin's LZ4 and BZip2), made here as the plugins frame
+// them and decoded by evkit; a block or a stream cut short is refused.
+TEST(Hdf5Io, ReadsTheLz4AndBzip2PluginsChunksAndRefusesCutOnes) {
+  ScratchDir dir;
+  RandomEventOptions o;
+  o.count = 3000;
+  o.sensor = SensorSize{640, 480};
+  const EventStore ev = randomEvents(o);
+  std::vector<uint16_t> pattern(ev.size());  // compressible: LZ4 blocks of both kinds
+  for (size_t i = 0; i < pattern.size(); ++i)
+    pattern[i] = static_cast<uint16_t>(i < 1500 ? i % 7 : ev.x[i]);
+  const auto bytes = reinterpret_cast<const char*>(pattern.data());
+  const size_t total = pattern.size() * sizeof(uint16_t);
+
+  // LZ4: the decoded size (8 bytes, big-endian), the block size (4), each block's size and bytes.
+  std::vector<uint8_t> lz4;
+  const auto put = [&](uint64_t v, int n) {
+    for (int b = n - 1; b >= 0; --b) lz4.push_back(static_cast<uint8_t>(v >> (8 * b)));
+  };
+  const size_t block = 1024;
+  put(total, 8);
+  put(block, 4);
+  int compressed_blocks = 0;
+  for (size_t done = 0; done < total; done += block) {
+    const int n = static_cast<int>(std::min(block, total - done));
+    std::vector<char> out(static_cast<size_t>(LZ4_compressBound(n)));
+    const int c = LZ4_compress_default(bytes + done, out.data(), n, static_cast<int>(out.size()));
+    if (c > 0 && c < n) {
+      put(static_cast<uint64_t>(c), 4);
+      lz4.insert(lz4.end(), out.begin(), out.begin() + c);
+      ++compressed_blocks;
+    } else {
+      put(static_cast<uint64_t>(n), 4);
+      lz4.insert(lz4.end(), bytes + done, bytes + done + n);
+    }
+  }
+  ASSERT_GE(compressed_blocks, 2);
+  const std::string lz4_path = dir / "lz4.h5";
+  writeDsec(lz4_path, ev, o.t_start_us,
+            [](hid_t dcpl) { H5Pset_filter(dcpl, 32004, H5Z_FLAG_OPTIONAL, 0, nullptr); });
+  replaceFirstChunk(lz4_path, "events/x", lz4);
+  EXPECT_TRUE(readRecording(lz4_path).events.x == pattern);
+  lz4.resize(lz4.size() - 10);
+  replaceFirstChunk(lz4_path, "events/x", lz4);
+  expectRefused(lz4_path, "events/x, chunk at [0]: its LZ4 block at byte");
+
+  std::vector<char> bz(total + total / 100 + 600);
+  auto bz_size = static_cast<unsigned>(bz.size());
+  ASSERT_EQ(BZ2_bzBuffToBuffCompress(bz.data(), &bz_size, const_cast<char*>(bytes),
+                                     static_cast<unsigned>(total), 9, 0, 0),
+            BZ_OK);
+  std::vector<uint8_t> bzip2(bz.begin(), bz.begin() + bz_size);
+  const std::string bz_path = dir / "bzip2.h5";
+  writeDsec(bz_path, ev, o.t_start_us,
+            [](hid_t dcpl) { H5Pset_filter(dcpl, 307, H5Z_FLAG_OPTIONAL, 0, nullptr); });
+  replaceFirstChunk(bz_path, "events/x", bzip2);
+  EXPECT_TRUE(readRecording(bz_path).events.x == pattern);
+  bzip2.resize(bzip2.size() / 2);
+  replaceFirstChunk(bz_path, "events/x", bzip2);
+  expectRefused(bz_path, "events/x, chunk at [0]: its bzip2 stream does not end where it should");
 }
 
 // Frames chunked across frames and rows (2 x 3 x 5 chunks of 3 x 7 x 11 frames), deflated, the
