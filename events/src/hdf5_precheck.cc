@@ -160,6 +160,10 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
   std::optional<uint64_t> elements, element_bytes;
   std::optional<std::vector<uint8_t>> layout;  // a message may be empty
   int64_t layout_at = 0;
+  // Chunks without filters are read at their stored size and copied out at the chunk's: they are
+  // checked against it, once every message is read. Filtered: every pipeline message names one.
+  int pipelines = 0;
+  bool filtered = true;
   while (!pending.empty()) {
     const Chunk c = pending.back();
     pending.pop_back();
@@ -200,7 +204,10 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
                        chunk.begin() + static_cast<std::ptrdiff_t>(data + size));
         layout_at = c.at + static_cast<int64_t>(data);
       } else if (type == kFilterPipeline) {
-        checkFilterPipeline(&chunk[data], size, c.at + static_cast<int64_t>(data), what);
+        ++pipelines;
+        filtered =
+            checkFilterPipeline(&chunk[data], size, c.at + static_cast<int64_t>(data), what) > 0 &&
+            filtered;
       } else if (type == kSymbolTable) {
         // An old-style group: a B-tree of symbol nodes and the local heap of their names; the
         // library loads the heap's data segment at its stated size.
@@ -214,7 +221,7 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
     }
   }
   if (!layout) return;
-  checkLayout(layout->data(), layout->size(), layout_at, what);
+  checkLayout(layout->data(), layout->size(), layout_at, pipelines > 0 && filtered, what);
   const std::optional<uint64_t> compact_bytes = compactBytes(layout->data(), layout->size());
   if (compact_bytes && elements && element_bytes &&
       (*element_bytes != 0 && *elements > *compact_bytes / *element_bytes)) {
@@ -315,8 +322,8 @@ void Hdf5Precheck::checkLocalHeap(uint64_t address, const std::string& what) con
   }
 }
 
-void Hdf5Precheck::checkFilterPipeline(const uint8_t* m, uint64_t size, int64_t at,
-                                       const std::string& what) const {
+int Hdf5Precheck::checkFilterPipeline(const uint8_t* m, uint64_t size, int64_t at,
+                                      const std::string& what) const {
   // Filter pipeline message, section IV.A.2.l: version, the filters' count, [v1: 6 reserved bytes],
   // then each filter: its identification value (2 bytes), [its name's length (2): v1, or v2 from
   // 256], flags (2), the client data's count (2), [the name, NUL-terminated: v1 padded to 8 bytes],
@@ -348,9 +355,10 @@ void Hdf5Precheck::checkFilterPipeline(const uint8_t* m, uint64_t size, int64_t 
       fail("the name of filter " + std::to_string(id) + " does not end within its " +
            std::to_string(name) + " bytes");
   }
+  return m[1];
 }
 
-void Hdf5Precheck::checkLayout(const uint8_t* m, uint64_t size, int64_t at,
+void Hdf5Precheck::checkLayout(const uint8_t* m, uint64_t size, int64_t at, bool filtered,
                                const std::string& what) const {
   // A chunked dataset's chunk dimensions divide in the library: a zero one is a SIGFPE there.
   // Data layout message, section IV.A.2.i: versions 1-2 (dimensionality, class, 5 reserved bytes,
@@ -399,15 +407,18 @@ void Hdf5Precheck::checkLayout(const uint8_t* m, uint64_t size, int64_t at,
   if (version <= 3) {
     const size_t address_at = version == 3 ? 3 : 8;
     checkChunkIndex(loadLe(m + address_at, offset_bytes_), at + static_cast<int64_t>(address_at),
-                    rank, what);
+                    rank, filtered ? 0 : bytes, what);
   }
 }
 
 void Hdf5Precheck::checkChunkIndex(uint64_t address, int64_t cited, int rank,
-                                   const std::string& what) const {
+                                   uint64_t unfiltered_bytes, const std::string& what) const {
   // A chunk B-tree's keys hold the chunk's stored size (4 bytes), its filter mask (4) and `rank`
   // 8-byte offsets; its leaves' children are the chunks, which the library reads at their stored
-  // size. What a filtered chunk decodes to is checked where evkit decodes it (hdf5_filters.h).
+  // size. Without filters libhdf5 1.10.8 then copies the chunk's bytes out of that buffer, so such
+  // a chunk must store exactly `unfiltered_bytes` (a 1,016-byte chunk was read as 2,400, a heap
+  // overflow inside H5Dread, found by fuzzing). What a filtered chunk decodes to is checked where
+  // evkit decodes it (hdf5_filters.h).
   if (undefinedAddress(address, offset_bytes_)) return;  // no chunk written yet
   const std::string index = "chunk index of " + what;
   checkBTree(address, cited, kChunkNodes, 8 + 8 * static_cast<size_t>(rank), index,
@@ -418,6 +429,12 @@ void Hdf5Precheck::checkChunkIndex(uint64_t address, int64_t cited, int rank,
                              index + ": a chunk of " + std::to_string(stored) +
                                  " bytes at address " + std::to_string(chunk) +
                                  " runs past the end of the file");
+               }
+               if (unfiltered_bytes != 0 && stored != unfiltered_bytes) {
+                 throwAtByte(path_, at,
+                             index + ": a chunk of " + std::to_string(stored) +
+                                 " bytes stored without filters, for " +
+                                 std::to_string(unfiltered_bytes) + " bytes");
                }
              });
 }

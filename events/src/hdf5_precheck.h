@@ -38,9 +38,10 @@ class Hdf5Precheck {
   // not a compact layout, or a dataspace too short to tell).
   std::optional<uint64_t> dataspaceElements(const uint8_t* message, uint64_t size) const;
   std::optional<uint64_t> compactBytes(const uint8_t* message, uint64_t size) const;
-  void checkFilterPipeline(const uint8_t* message, uint64_t size, int64_t at,
-                           const std::string& what) const;
-  void checkLayout(const uint8_t* message, uint64_t size, int64_t at,
+  // Returns the pipeline's count of filters.
+  int checkFilterPipeline(const uint8_t* message, uint64_t size, int64_t at,
+                          const std::string& what) const;
+  void checkLayout(const uint8_t* message, uint64_t size, int64_t at, bool filtered,
                    const std::string& what) const;
   void checkDatatype(const uint8_t* message, uint64_t size, int64_t at,
                      const std::string& what) const;
@@ -48,8 +49,10 @@ class Hdf5Precheck {
                       const std::string& what) const;
   // Whether `length` bytes from `address` (counted from the base) lie inside the file.
   bool spans(uint64_t address, uint64_t length) const;
-  // The chunk B-tree at `address`, read from the message at byte `cited`.
-  void checkChunkIndex(uint64_t address, int64_t cited, int rank, const std::string& what) const;
+  // The chunk B-tree at `address`, read from the message at byte `cited`; chunks without filters
+  // hold `unfiltered_bytes` each (0: the dataset has filters).
+  void checkChunkIndex(uint64_t address, int64_t cited, int rank, uint64_t unfiltered_bytes,
+                       const std::string& what) const;
   void checkGroupIndex(uint64_t address, int64_t cited, const std::string& what) const;
   // Walks the version 1 B-tree of `type` at `address` (read at byte `cited`; keys of `key` bytes)
   // and hands each leaf's key, child address and node position to `leaf`; `index` names it in the
