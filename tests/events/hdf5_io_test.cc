@@ -170,6 +170,15 @@ void writeDsec(
   H5Fclose(f);
 }
 
+// 3000 events on a 640 x 480 sensor: one chunk of each column of writeDsec's files (x's is 6000
+// bytes).
+RandomEventOptions oneChunkOfEvents() {
+  RandomEventOptions o;
+  o.count = 3000;
+  o.sensor = SensorSize{640, 480};
+  return o;
+}
+
 TEST(Hdf5Io, ReadsTheDsecLayout) {
   ScratchDir dir;
   RandomEventOptions o;
@@ -207,9 +216,7 @@ TEST(Hdf5Io, ReadsAFileBehindAUserBlock) {
 // shorter buffer (a heap overflow inside H5Dread, found by fuzzing).
 TEST(Hdf5Io, AChunkWithItsFiltersSkippedHoldsTheChunkOrIsRefused) {
   ScratchDir dir;
-  RandomEventOptions o;
-  o.count = 3000;  // one chunk of each column
-  o.sensor = SensorSize{640, 480};
+  const RandomEventOptions o = oneChunkOfEvents();
   const EventStore ev = randomEvents(o);
   const auto rewriteX = [&](const std::string& path, size_t bytes) {
     writeDsec(path, ev, o.t_start_us);
@@ -274,9 +281,7 @@ void expectRefused(const std::string& path, const std::string& message) {
 // out of whatever they return): a chunk decodes to its size or is refused, naming the chunk.
 TEST(Hdf5Io, ChunksDecodeToTheirSizeOrAreRefused) {
   ScratchDir dir;
-  RandomEventOptions o;
-  o.count = 3000;  // one chunk of each column: x's is 6000 bytes
-  o.sensor = SensorSize{640, 480};
+  const RandomEventOptions o = oneChunkOfEvents();
   const EventStore ev = randomEvents(o);
   const auto x = reinterpret_cast<const uint8_t*>(ev.x.data());
 
@@ -333,9 +338,7 @@ TEST(Hdf5Io, ChunksDecodeToTheirSizeOrAreRefused) {
 // bytes back, to 6000 bytes; then one whose first copy reaches before the stream's start.
 TEST(Hdf5Io, ReadsLzfChunksAndRefusesACopyFromBeforeTheStart) {
   ScratchDir dir;
-  RandomEventOptions o;
-  o.count = 3000;
-  o.sensor = SensorSize{640, 480};
+  const RandomEventOptions o = oneChunkOfEvents();
   const EventStore ev = randomEvents(o);
   const std::string path = dir / "lzf.h5";
   writeDsec(path, ev, o.t_start_us,
@@ -361,9 +364,7 @@ TEST(Hdf5Io, ReadsLzfChunksAndRefusesACopyFromBeforeTheStart) {
 // them and decoded by evkit; a block or a stream cut short is refused.
 TEST(Hdf5Io, ReadsTheLz4AndBzip2PluginsChunksAndRefusesCutOnes) {
   ScratchDir dir;
-  RandomEventOptions o;
-  o.count = 3000;
-  o.sensor = SensorSize{640, 480};
+  const RandomEventOptions o = oneChunkOfEvents();
   const EventStore ev = randomEvents(o);
   std::vector<uint16_t> pattern(ev.size());  // compressible: LZ4 blocks of both kinds
   for (size_t i = 0; i < pattern.size(); ++i)
