@@ -9,9 +9,10 @@
 // itself, checking every stage's size: a chunk decodes to exactly its chunk's bytes or is an
 // error naming the dataset, the chunk and what was expected.
 //
-// Decoded here: deflate, shuffle, Fletcher32 (verified) and Blosc (libblosc, every compressor of
-// Debian's build). Any other filter (szip, nbit, scale-offset, third-party plugins) is refused with
-// its name: libhdf5's decoders for them are not safe on a damaged file.
+// Decoded here: deflate, shuffle, Fletcher32 (verified), Blosc (libblosc, every compressor of
+// Debian's build), h5py's LZF, and the HDF Group's LZ4 and bzip2 plugins. Any other filter (szip,
+// nbit, scale-offset, other plugins) is refused with its name: libhdf5's decoders and plugins are
+// not safe on a damaged file.
 #pragma once
 
 #include <hdf5.h>
