@@ -67,6 +67,41 @@ with h5py.File(sys.argv[2], "w") as f:  # the plugins' filters (Debian's hdf5-fi
     g.create_dataset("p", data=rng.integers(0, 2, n).astype("i1") * 2 - 1, chunks=(n,),
                      compression=32004)
 PY
+  # Frames and attributes: evkit's layout with deflated frames chunked across frames and rows, and
+  # event_utils' with times in seconds, polarities as h5py's bool (an enum) and timestamped images.
+  /usr/bin/python3 - "$seeds/hdf5/e.h5" "$seeds/hdf5/f.h5" <<'PY' || echo "fuzz: h5py could not write the seed files of frames"
+import sys
+import h5py
+import numpy as np
+rng = np.random.default_rng(2)
+n = 200
+with h5py.File(sys.argv[1], "w") as f:
+    f.attrs["evkit_layout"] = 1
+    f.attrs["sensor_width"] = 34
+    f.attrs["sensor_height"] = 26
+    g = f.create_group("events")
+    g.create_dataset("t", data=np.sort(rng.integers(0, 10**5, n)))
+    g.create_dataset("x", data=rng.integers(0, 34, n).astype("u2"))
+    g.create_dataset("y", data=rng.integers(0, 26, n).astype("u2"))
+    g.create_dataset("p", data=rng.integers(0, 2, n).astype("i1") * 2 - 1)
+    fr = f.create_group("frames")
+    fr.create_dataset("images", data=rng.integers(0, 255, (3, 26, 34)).astype("u1"),
+                      chunks=(2, 13, 17), compression="gzip", shuffle=True)
+    fr.create_dataset("exposure_start", data=np.array([0, 40000, 80000]))
+    fr.create_dataset("exposure_end", data=np.array([10000, 50000, 90000]))
+with h5py.File(sys.argv[2], "w") as f:
+    f.attrs["sensor_resolution"] = np.array([26, 34])
+    g = f.create_group("events")
+    g.create_dataset("ts", data=np.sort(rng.random(n)) * 0.1)
+    g.create_dataset("xs", data=rng.integers(0, 34, n).astype("u2"))
+    g.create_dataset("ys", data=rng.integers(0, 26, n).astype("u2"))
+    g.create_dataset("ps", data=rng.integers(0, 2, n).astype(bool))
+    im = f.create_group("images")
+    for i in range(2):
+        d = im.create_dataset(f"image{i:09d}", data=rng.integers(0, 255, (26, 34)).astype("u1"),
+                              chunks=(13, 34), compression="gzip" if i else None)
+        d.attrs["timestamp"] = 0.03 + 0.05 * i
+PY
 fi
 [ -d "$seeds/aedat4" ] && ASAN_OPTIONS=detect_leaks=0 "$evkit" convert "$work/demo/random.txt" "$seeds/aedat4/a.aedat4" 2>/dev/null
 [ -d "$seeds/aedat4" ] && ASAN_OPTIONS=detect_leaks=0 "$evkit" convert "$work/demo/random.txt" "$seeds/aedat4/z.aedat4" --compression zstd 2>/dev/null

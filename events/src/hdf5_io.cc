@@ -328,9 +328,8 @@ class Hdf5Reader final : public EventReader {
         checkHeader(group.get(), name, std::string("images/") + name);
         H5Handle ds(H5Dopen2(group.get(), name, H5P_DEFAULT));
         if (!ds || !attributeExists(ds.get(), "timestamp")) continue;
-        H5Handle attr(H5Aopen(ds.get(), "timestamp", H5P_DEFAULT));
-        double ts = 0;
-        H5Aread(attr.get(), H5T_NATIVE_DOUBLE, &ts);
+        const double ts = readDoubleAttribute(ds.get(), "timestamp", path_,
+                                              std::string("images/") + name + "/timestamp");
         if (!std::isfinite(ts) || std::abs(ts) > 9e12)
           throwInFile(
               path_, std::string("images/") + name + ": timestamp is not a finite time in seconds");

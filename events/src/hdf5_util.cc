@@ -50,12 +50,35 @@ bool attributeExists(hid_t loc, const std::string& name) {
   return H5Aexists(loc, name.c_str()) > 0;
 }
 
-int64_t readIntAttribute(hid_t loc, const std::string& name, const std::string& file) {
+namespace {
+
+// Reads an attribute that must hold one number: a scalar, or one element of any rank. H5Aread
+// writes the attribute's every element, so a damaged file's array attribute would run past `out`.
+void readOneNumber(hid_t loc, const std::string& name, hid_t mem_type, void* out,
+                   const std::string& file, const std::string& shown, const char* what) {
   H5Handle attr(H5Aopen(loc, name.c_str(), H5P_DEFAULT));
-  int64_t value = 0;
-  if (!attr || H5Aread(attr.get(), H5T_NATIVE_INT64, &value) < 0) {
-    throwInFile(file, "cannot read the attribute '" + name + "' as an integer");
+  if (!attr) throwInFile(file, "cannot open the attribute '" + name + "'");
+  H5Handle space(H5Aget_space(attr.get()));
+  H5Handle type(H5Aget_type(attr.get()));
+  const H5T_class_t kind = type ? H5Tget_class(type.get()) : H5T_NO_CLASS;
+  if (!space || H5Sget_simple_extent_npoints(space.get()) != 1 ||
+      (kind != H5T_INTEGER && kind != H5T_FLOAT) || H5Aread(attr.get(), mem_type, out) < 0) {
+    throwInFile(file, "the attribute '" + (shown.empty() ? name : shown) + "' is not " + what);
   }
+}
+
+}  // namespace
+
+int64_t readIntAttribute(hid_t loc, const std::string& name, const std::string& file) {
+  int64_t value = 0;
+  readOneNumber(loc, name, H5T_NATIVE_INT64, &value, file, "", "one integer");
+  return value;
+}
+
+double readDoubleAttribute(hid_t loc, const std::string& name, const std::string& file,
+                           const std::string& shown) {
+  double value = 0;
+  readOneNumber(loc, name, H5T_NATIVE_DOUBLE, &value, file, shown, "one number");
   return value;
 }
 

@@ -62,8 +62,11 @@ void silenceHdf5Errors();
 bool linkExists(hid_t loc, const std::string& path);
 bool attributeExists(hid_t loc, const std::string& name);
 
-// Reads a scalar numeric attribute (converted to the requested type).
+// Read an attribute that holds one number (a scalar or a single element, integer or floating
+// point), converted; anything else is an error naming the attribute (as `shown`, when given).
 int64_t readIntAttribute(hid_t loc, const std::string& name, const std::string& file);
+double readDoubleAttribute(hid_t loc, const std::string& name, const std::string& file,
+                           const std::string& shown = "");
 void writeIntAttribute(hid_t loc, const std::string& name, int64_t value);
 void writeStringAttribute(hid_t loc, const std::string& name, const std::string& value);
 // Reads an integer array attribute (e.g. event_utils' sensor_resolution).

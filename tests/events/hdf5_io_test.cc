@@ -521,9 +521,8 @@ TEST(Hdf5Io, AMillisecondOriginAtInt64sEndsIsAnErrorOrIgnoredNotAnOverflow) {
   }
 }
 
-TEST(Hdf5Io, ReadsTheEventUtilsLayoutWithImages) {
-  ScratchDir dir;
-  const std::string path = dir / "eu.h5";
+// An event_utils file (events/ts, xs, ys, ps in seconds; sensor_resolution; one image at 0.6 s).
+void writeEventUtils(const std::string& path) {
   const hid_t f = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
   const hid_t g = H5Gcreate2(f, "events", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
   const std::vector<double> ts = {0.5, 0.500001, 0.75, 1.25};
@@ -568,15 +567,63 @@ TEST(Hdf5Io, ReadsTheEventUtilsLayoutWithImages) {
   H5Gclose(g);
   H5Fclose(f);
 
+}
+
+TEST(Hdf5Io, ReadsTheEventUtilsLayoutWithImages) {
+  ScratchDir dir;
+  const std::string path = dir / "eu.h5";
+  writeEventUtils(path);
   const Recording rec = readRecording(path);
   EXPECT_EQ(rec.info.layout, "event_utils");
   EXPECT_EQ(rec.info.sensor, (SensorSize{8, 6}));
   EXPECT_EQ(rec.events.t, (std::vector<int64_t>{500000, 500001, 750000, 1250000}));
   EXPECT_EQ(rec.events.p, (std::vector<int8_t>{1, -1, -1, 1}));
-  EXPECT_EQ(rec.events.x, xs);
+  EXPECT_EQ(rec.events.x, (std::vector<uint16_t>{1, 2, 3, 4}));
   ASSERT_EQ(rec.frames.size(), 1u);
   EXPECT_EQ(rec.frames[0].exposure_start_us, 600000);
   EXPECT_NEAR(rec.frames[0].image.at<float>(5, 7), 0.2f, 1e-6);
+}
+
+// Replaces the attribute `name` of the object at `object` with `count` copies of `value`, in a
+// dataspace of rank 1 (or a scalar where count is 0).
+void rewriteAttribute(const std::string& path, const char* object, const char* name, hid_t type,
+                      hsize_t count, double value) {
+  const hid_t f = H5Fopen(path.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+  const hid_t o = H5Oopen(f, object, H5P_DEFAULT);
+  H5Adelete(o, name);
+  const hid_t space = count == 0 ? H5Screate(H5S_SCALAR) : H5Screate_simple(1, &count, nullptr);
+  const std::vector<double> values(std::max<hsize_t>(count, 1), value);
+  const hid_t a = H5Acreate2(o, name, type, space, H5P_DEFAULT, H5P_DEFAULT);
+  H5Awrite(a, H5T_NATIVE_DOUBLE, values.data());
+  H5Aclose(a);
+  H5Sclose(space);
+  H5Oclose(o);
+  H5Fclose(f);
+}
+
+// An attribute read as one number must hold one: libhdf5 writes all of an attribute's elements,
+// and an array where one was expected ran over the reader's variable (a crash reading a file whose
+// sensor_width held 64 integers, a hang reading an image timestamp of 64 doubles).
+TEST(Hdf5Io, AttributesReadAsOneNumberHoldOneOrAreRefused) {
+  ScratchDir dir;
+  Recording rec;
+  rec.events = randomEvents({.count = 1000, .sensor = {64, 48}, .seed = 7});
+  const std::string evkit_file = dir / "evkit.h5";
+  writeRecording(evkit_file, rec);
+  rewriteAttribute(evkit_file, "/", "sensor_width", H5T_STD_I64LE, 1, 64);  // shape (1,)
+  EXPECT_EQ(readRecording(evkit_file).info.sensor, (SensorSize{64, 48}));
+  rewriteAttribute(evkit_file, "/", "sensor_width", H5T_STD_I64LE, 64, 64);
+  expectRefused(evkit_file, "the attribute 'sensor_width' is not one integer");
+  rewriteAttribute(evkit_file, "/", "sensor_width", H5T_C_S1, 0, 0);
+  expectRefused(evkit_file, "the attribute 'sensor_width' is not one integer");
+
+  const std::string eu = dir / "eu.h5";
+  writeEventUtils(eu);
+  rewriteAttribute(eu, "images/image000000000", "timestamp", H5T_NATIVE_FLOAT, 1, 0.75);
+  ASSERT_EQ(readRecording(eu).frames.size(), 1u);
+  EXPECT_EQ(readRecording(eu).frames[0].exposure_start_us, 750000);
+  rewriteAttribute(eu, "images/image000000000", "timestamp", H5T_IEEE_F64LE, 64, 0.6);
+  expectRefused(eu, "the attribute 'images/image000000000/timestamp' is not one number");
 }
 
 TEST(Hdf5Io, WriterLeavesNothingWhenAbandonedAndRejectsUnsortedEvents) {
