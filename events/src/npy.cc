@@ -64,12 +64,26 @@ NpyArray readNpy(const std::string& path) {
   NpyArray out;
   const size_t open = dict.find("'shape': (");
   if (open == std::string::npos) throwAtByte(path, 10, "no shape in header");
-  std::istringstream shape(dict.substr(open + 10, dict.find(')', open) - open - 10));
+  const size_t close = dict.find(')', open);
+  if (close == std::string::npos) throwAtByte(path, 10, "the header's shape has no ')'");
+  std::istringstream shape(dict.substr(open + 10, close - open - 10));
+  // Each dimension a plain decimal count; their product is checked, so that no shape can wrap to
+  // the size of the data that follows.
+  size_t count = 1;
   for (std::string token; std::getline(shape, token, ',');) {
-    if (token.find_first_not_of(" ") != std::string::npos) out.shape.push_back(std::stoul(token));
+    const size_t first = token.find_first_not_of(' '), last = token.find_last_not_of(' ');
+    if (first == std::string::npos) continue;
+    const std::string digits = token.substr(first, last - first + 1);
+    const bool decimal =
+        digits.size() <= 12 && digits.find_first_not_of("0123456789") == std::string::npos;
+    const size_t dim = decimal ? std::stoull(digits) : 0;
+    if (!decimal || __builtin_mul_overflow(count, dim, &count) ||
+        count > bytes.size() / sizeof(float)) {
+      throwAtByte(path, static_cast<int64_t>(10 + open),
+                  "the dimension '" + digits + "' is not a count that the file's data can hold");
+    }
+    out.shape.push_back(dim);
   }
-  const size_t count =
-      std::accumulate(out.shape.begin(), out.shape.end(), size_t{1}, std::multiplies<>());
   if (bytes.size() - 10 - len != count * sizeof(float))
     throwAtByte(path, static_cast<int64_t>(10 + len), "data size does not match the shape");
   out.data.resize(count);

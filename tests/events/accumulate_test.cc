@@ -150,6 +150,33 @@ TEST(Npy, RoundTripAndHeaderAlignment) {
   EXPECT_EQ(back.data, data);
 }
 
+// A header's shape must be decimal counts whose product is the data's: a shape whose product wraps
+// to the data's size (2^62 + 1 rows of 4) would have read as a huge array over 16 bytes.
+TEST(Npy, ShapesAreCountsTheDataHolds) {
+  test::ScratchDir dir;
+  const auto npy = [&](const std::string& shape, size_t floats) {
+    std::string dict = "{'descr': '<f4', 'fortran_order': False, 'shape': " + shape + ", }";
+    dict.resize(118, ' ');
+    dict += '\n';
+    std::string bytes = std::string("\x93NUMPY\x01\x00", 8) + char(dict.size()) + '\0' + dict;
+    bytes += std::string(floats * sizeof(float), '\0');
+    test::writeText(dir / "s.npy", bytes);
+    return dir / "s.npy";
+  };
+  EXPECT_EQ(readNpy(npy("(4,)", 4)).shape, (std::vector<size_t>{4}));
+  EXPECT_EQ(readNpy(npy("(1, 2, 2)", 4)).shape, (std::vector<size_t>{1, 2, 2}));
+  for (const char* shape : {"(4611686018427387905, 4)", "(-4,)", "(0x4,)", "(4, 'a')"}) {
+    try {
+      readNpy(npy(shape, 4));
+      ADD_FAILURE() << shape << " was read";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("is not a count that the file's data can hold"),
+                std::string::npos)
+          << e.what();
+    }
+  }
+}
+
 }  // namespace
 }  // namespace evkit
 
