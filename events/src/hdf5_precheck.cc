@@ -19,7 +19,12 @@ constexpr int kDatatype = 0x03;
 constexpr int kLayout = 0x08;
 constexpr int kFilterPipeline = 0x0b;
 constexpr int kAttribute = 0x0c;
-constexpr int kVariableLength = 9;  // datatype class
+constexpr int kVariableLength = 9;    // datatype class
+constexpr int kMaxTypeDepth = 8;      // datatypes within datatypes
+constexpr int kSharedMessage = 0x02;  // object header message flag
+// A shared datatype message refers to a committed datatype's object header instead of holding the
+// datatype: event files do not use them, and evkit does not check them.
+constexpr const char* kSharedDatatype = "a shared (committed) datatype, which evkit does not read";
 constexpr int kSymbolTable = 0x11;
 constexpr int kCompactLayout = 0;
 constexpr int kChunkedLayout = 2;
@@ -173,6 +178,7 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
     for (size_t pos = 0; pos + header_bytes <= chunk.size();) {
       const int type = version == 1 ? loadLe(&chunk[pos], 2) : chunk[pos];
       const uint64_t size = version == 1 ? loadLe(&chunk[pos + 2], 2) : loadLe(&chunk[pos + 1], 2);
+      const bool shared = (chunk[pos + (version == 1 ? 4 : 3)] & kSharedMessage) != 0;
       const size_t data = pos + header_bytes;
       if (size > chunk.size() - data)
         fail(c.at + static_cast<int64_t>(pos), "a message runs past its chunk");
@@ -195,6 +201,7 @@ void Hdf5Precheck::checkObjectHeader(uint64_t address, const std::string& what) 
       } else if (type == kDataspace) {
         elements = dataspaceElements(&chunk[data], size);
       } else if (type == kDatatype) {
+        if (shared) fail(c.at + static_cast<int64_t>(pos), kSharedDatatype);
         checkDatatype(&chunk[data], size, c.at + static_cast<int64_t>(data), what);
         if (size >= 8) element_bytes = loadLe(&chunk[data + 4], 4);
       } else if (type == kAttribute) {
@@ -519,6 +526,7 @@ void Hdf5Precheck::checkAttribute(const uint8_t* m, uint64_t size, int64_t at,
   const uint64_t space_at = type_at + padded(type);
   const uint64_t value_at = space_at + padded(space);
   if (value_at > size || type < 8 || space < 4) fail("its parts run past the message");
+  if (version >= 2 && (m[1] & 0x01) != 0) fail(kSharedDatatype);
   checkDatatype(m + type_at, type, at + static_cast<int64_t>(type_at), "an attribute of " + what);
   if ((m[type_at] & 0x0f) == kVariableLength) return;  // the value holds heap references
   // A null dataspace (v2 type 2) holds no value; a scalar one (rank 0) one element.
@@ -531,33 +539,121 @@ void Hdf5Precheck::checkAttribute(const uint8_t* m, uint64_t size, int64_t at,
     fail("a value larger than its message");
 }
 
-void Hdf5Precheck::checkDatatype(const uint8_t* m, uint64_t size, int64_t at,
-                                 const std::string& what) const {
+uint64_t Hdf5Precheck::checkDatatype(const uint8_t* m, uint64_t size, int64_t at,
+                                     const std::string& what, int depth) const {
   // Datatype message, section IV.A.2.d: class and version, 3 bytes of class bits, the element size
-  // (4 bytes), then the class's properties; a number's begin with its bits' offset and precision
-  // (2 bytes each), a float's go on with the exponent's and mantissa's locations and sizes (1 byte
-  // each) and the exponent's bias (4). libhdf5 converts numbers of any stated size and precision,
-  // reading past its buffers for sizes no machine has (integers of 12,802 and of 16 bytes) and for
-  // bits past the element's (a precision of 32,832 bits in an 8-byte integer), all found by
-  // fuzzing. Event files hold numbers of 1 to 8 bytes.
+  // (4 bytes), then the class's properties. Returns the bytes the encoding takes.
+  //
+  // Numbers: their bits' offset and precision (2 bytes each), a float's exponent and mantissa
+  // locations and sizes (1 byte each) and the exponent's bias (4). libhdf5 converts numbers of any
+  // stated size and precision, reading past its buffers for sizes no machine has (integers of
+  // 12,802 and of 16 bytes) and for bits past the element's (a precision of 32,832 bits in an
+  // 8-byte integer), all found by fuzzing. Event files hold numbers of 1 to 8 bytes.
+  //
+  // Enumerations, compounds, arrays and variable-length types hold other datatypes, and names that
+  // libhdf5 reads to their NUL: an enumeration (h5py's bool) allocates its values at its base
+  // type's size times its members (an 8 GB request from a base type of 2^32 - 2^16 + 1 bytes,
+  // found by fuzzing), so every datatype within is checked as a number is, and every name and
+  // value must lie inside the message.
   const auto fail = [&](const std::string& problem) {
     throwAtByte(path_, at, "datatype of " + what + ": " + problem);
   };
+  if (depth > kMaxTypeDepth) fail("datatypes nested deeper than " + std::to_string(kMaxTypeDepth));
   if (size < 8) fail("truncated");
-  const int type_class = m[0] & 0x0f;
-  const bool numeric = type_class == 0 || type_class == 1;  // fixed-point, floating-point
-  if (!numeric) return;
-  const uint64_t bytes = loadLe(m + 4, 4);
-  if (bytes != 1 && bytes != 2 && bytes != 4 && bytes != 8)
-    fail("a number of " + std::to_string(bytes) + " bytes");
-  if (size < (type_class == 0 ? 12u : 20u)) fail("truncated properties");
-  const uint64_t offset = loadLe(m + 8, 2), precision = loadLe(m + 10, 2);
-  if (precision == 0 || offset + precision > 8 * bytes) {
-    fail("bits " + std::to_string(offset) + " to " + std::to_string(offset + precision) + " of a " +
-         std::to_string(8 * bytes) + "-bit number");
+  const int type_class = m[0] & 0x0f, version = m[0] >> 4;
+  const uint64_t bits = loadLe(m + 1, 3), bytes = loadLe(m + 4, 4);
+  if (version < 1 || version > 4) fail("unknown version " + std::to_string(version));
+  // A name ending with its NUL inside the message, from `pos`; returns the bytes it takes (padded
+  // to 8 before version 3).
+  const auto name = [&](uint64_t pos) -> uint64_t {
+    const void* nul = pos < size ? std::memchr(m + pos, 0, size - pos) : nullptr;
+    if (nul == nullptr) fail("a name that runs past the message");
+    const uint64_t length = static_cast<uint64_t>(static_cast<const uint8_t*>(nul) - (m + pos));
+    return version >= 3 ? length + 1 : (length + 8) / 8 * 8;
+  };
+  const auto inner = [&](uint64_t pos) -> uint64_t {  // a datatype within, from `pos`
+    if (pos > size) fail("truncated properties");
+    return pos +
+           checkDatatype(m + pos, size - pos, at + static_cast<int64_t>(pos), what, depth + 1);
+  };
+  switch (type_class) {
+    case 0:    // fixed-point
+    case 1:    // floating-point
+    case 4: {  // bit field
+      if (bytes != 1 && bytes != 2 && bytes != 4 && bytes != 8)
+        fail("a number of " + std::to_string(bytes) + " bytes");
+      const uint64_t used = type_class == 1 ? 20 : 12;
+      if (size < used) fail("truncated properties");
+      const uint64_t offset = loadLe(m + 8, 2), precision = loadLe(m + 10, 2);
+      if (precision == 0 || offset + precision > 8 * bytes) {
+        fail("bits " + std::to_string(offset) + " to " + std::to_string(offset + precision) +
+             " of a " + std::to_string(8 * bytes) + "-bit number");
+      }
+      if (type_class == 1 && (m[12] + m[13] > precision || m[14] + m[15] > precision))
+        fail("an exponent or mantissa past the number's precision");
+      return used;
+    }
+    case 2:  // time: its precision
+      if (size < 10) fail("truncated properties");
+      return 10;
+    case 3:  // string
+    case 7:  // reference
+      return 8;
+    case 5: {  // opaque: an ASCII tag of the length the class bits give
+      const uint64_t tag = bits & 0xff;
+      if (tag > size - 8) fail("an opaque tag that runs past the message");
+      return 8 + tag;
+    }
+    case 6: {  // compound: each member's name, byte offset, [version 1: array dimensions], type
+      const uint64_t members = bits & 0xffff;
+      const int offset_bytes = bytes < (1u << 8)    ? 1
+                               : bytes < (1u << 16) ? 2
+                               : bytes < (1u << 24) ? 3
+                                                    : 4;
+      uint64_t pos = 8;
+      for (uint64_t i = 0; i < members; ++i) {
+        pos += name(pos);
+        pos += version >= 3 ? offset_bytes : 4;
+        if (version == 1) pos += 28;  // rank, reserved, permutation, reserved, four dimensions
+        pos = inner(pos);
+      }
+      return pos;
+    }
+    case 8: {  // enumeration: the base type (an integer of the enumeration's size), names, values
+      const uint64_t members = bits & 0xffff;
+      uint64_t pos = inner(8);
+      if ((m[8] & 0x0f) != 0 || loadLe(m + 12, 4) != bytes)
+        fail("an enumeration whose base type is not an integer of its size");
+      for (uint64_t i = 0; i < members; ++i) pos += name(pos);
+      if (pos > size || members * bytes > size - pos) fail("enumeration values past the message");
+      return pos + members * bytes;
+    }
+    case 9:  // variable-length: the base type
+      return inner(8);
+    case 10: {  // array: rank, [version 2: 3 reserved bytes], dimensions, [permutation], base type
+      if (size < 9) fail("truncated properties");
+      const uint64_t rank = m[8];
+      if (rank == 0 || rank > 32) fail("an array of rank " + std::to_string(rank));
+      const uint64_t dims_at = version >= 3 ? 9 : 12;
+      const uint64_t base_at = dims_at + rank * (version >= 3 ? 4 : 8);
+      if (base_at > size) fail("truncated properties");
+      uint64_t elements = 1;
+      for (uint64_t d = 0; d < rank; ++d) {
+        if (__builtin_mul_overflow(elements, loadLe(m + dims_at + 4 * d, 4), &elements) ||
+            elements > (uint64_t{1} << 32))
+          fail("an array of more than 2^32 elements");
+      }
+      const uint64_t end = inner(base_at);
+      uint64_t array_bytes = 0;
+      if (__builtin_mul_overflow(loadLe(m + base_at + 4, 4), elements, &array_bytes) ||
+          array_bytes != bytes)
+        fail("an array whose size is not its elements'");
+      return end;
+    }
+    default:
+      fail("unknown class " + std::to_string(type_class));
   }
-  if (type_class == 1 && (m[12] + m[13] > precision || m[14] + m[15] > precision))
-    fail("an exponent or mantissa past the number's precision");
+  return size;  // not reached: fail throws
 }
 
 }  // namespace evkit::detail

@@ -43,8 +43,9 @@ class Hdf5Precheck {
                           const std::string& what) const;
   void checkLayout(const uint8_t* message, uint64_t size, int64_t at, bool filtered,
                    const std::string& what) const;
-  void checkDatatype(const uint8_t* message, uint64_t size, int64_t at,
-                     const std::string& what) const;
+  // Returns the bytes the datatype's encoding takes; `depth` counts the datatypes it is within.
+  uint64_t checkDatatype(const uint8_t* message, uint64_t size, int64_t at, const std::string& what,
+                         int depth = 0) const;
   void checkAttribute(const uint8_t* message, uint64_t size, int64_t at,
                       const std::string& what) const;
   // Whether `length` bytes from `address` (counted from the base) lie inside the file.

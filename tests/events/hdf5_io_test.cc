@@ -521,8 +521,9 @@ TEST(Hdf5Io, AMillisecondOriginAtInt64sEndsIsAnErrorOrIgnoredNotAnOverflow) {
   }
 }
 
-// An event_utils file (events/ts, xs, ys, ps in seconds; sensor_resolution; one image at 0.6 s).
-void writeEventUtils(const std::string& path) {
+// An event_utils file (events/ts, xs, ys, ps in seconds; sensor_resolution; one image at 0.6 s);
+// ps 0/1 in one byte, or the enumeration FALSE/TRUE that h5py writes for numpy's bool.
+void writeEventUtils(const std::string& path, bool bool_polarity = false) {
   const hid_t f = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
   const hid_t g = H5Gcreate2(f, "events", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
   const std::vector<double> ts = {0.5, 0.500001, 0.75, 1.25};
@@ -538,7 +539,14 @@ void writeEventUtils(const std::string& path) {
   put("ts", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, ts.data());
   put("xs", H5T_STD_U16LE, H5T_NATIVE_UINT16, xs.data());
   put("ys", H5T_STD_U16LE, H5T_NATIVE_UINT16, ys.data());
-  put("ps", H5T_STD_U8LE, H5T_NATIVE_UINT8, ps.data());
+  if (bool_polarity) {
+    const hid_t boolean = H5Tenum_create(H5T_NATIVE_INT8);
+    for (const int8_t value : {0, 1}) H5Tenum_insert(boolean, value ? "TRUE" : "FALSE", &value);
+    put("ps", boolean, boolean, ps.data());
+    H5Tclose(boolean);
+  } else {
+    put("ps", H5T_STD_U8LE, H5T_NATIVE_UINT8, ps.data());
+  }
   const hsize_t res_n = 2;
   const hid_t res_space = H5Screate_simple(1, &res_n, nullptr);
   const int64_t res[2] = {6, 8};  // (height, width)
@@ -624,6 +632,46 @@ TEST(Hdf5Io, AttributesReadAsOneNumberHoldOneOrAreRefused) {
   EXPECT_EQ(readRecording(eu).frames[0].exposure_start_us, 750000);
   rewriteAttribute(eu, "images/image000000000", "timestamp", H5T_IEEE_F64LE, 64, 0.6);
   expectRefused(eu, "the attribute 'images/image000000000/timestamp' is not one number");
+}
+
+// Datatypes within datatypes are checked as numbers are: an enumeration's base type of
+// 2^32 - 2^16 + 1 bytes made libhdf5 ask for 8 GB for the values of h5py's bool (found by
+// fuzzing). Bools, compounds and arrays as h5py writes them still read.
+TEST(Hdf5Io, DatatypesWithinDatatypesAreChecked) {
+  ScratchDir dir;
+  const std::string path = dir / "bool.h5";
+  writeEventUtils(path, /*bool_polarity=*/true);
+  {  // a compound attribute holding an array and a nested compound
+    const hid_t f = H5Fopen(path.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+    const hsize_t three = 3;
+    const hid_t arr = H5Tarray_create2(H5T_IEEE_F32LE, 1, &three);
+    const hid_t pair = H5Tcreate(H5T_COMPOUND, 3);
+    H5Tinsert(pair, "a", 0, H5T_STD_I16LE);
+    H5Tinsert(pair, "b", 2, H5T_STD_U8LE);
+    const hid_t outer = H5Tcreate(H5T_COMPOUND, 15);
+    H5Tinsert(outer, "pair", 0, pair);
+    H5Tinsert(outer, "arr", 3, arr);
+    const hid_t scalar = H5Screate(H5S_SCALAR);
+    const std::vector<uint8_t> zeros(15, 0);
+    const hid_t a = H5Acreate2(f, "meta", outer, scalar, H5P_DEFAULT, H5P_DEFAULT);
+    H5Awrite(a, outer, zeros.data());
+    H5Aclose(a);
+    for (const hid_t id : {arr, pair, outer}) H5Tclose(id);
+    H5Sclose(scalar);
+    H5Fclose(f);
+  }
+  const Recording rec = readRecording(path);
+  EXPECT_EQ(rec.events.p, (std::vector<int8_t>{1, -1, -1, 1}));
+
+  // The enumeration's base type follows its own 8 bytes; its size field 4 bytes into it.
+  std::string bytes = test::readText(path);
+  const size_t names = bytes.find(std::string("FALSE\0", 6));
+  ASSERT_NE(names, std::string::npos);
+  const size_t base_size = names - 12 + 4;
+  ASSERT_EQ(bytes.substr(base_size, 4), std::string("\x01\0\0\0", 4));
+  bytes.replace(base_size, 4, std::string("\x01\0\xff\xff", 4));
+  test::writeText(dir / "huge.h5", bytes);
+  expectRefused(dir / "huge.h5", "datatype of 'events/ps': a number of 4294901761 bytes");
 }
 
 TEST(Hdf5Io, WriterLeavesNothingWhenAbandonedAndRejectsUnsortedEvents) {
