@@ -37,6 +37,9 @@ namespace fs = std::filesystem;
 namespace {
 
 constexpr hsize_t kMaxFrames = 1'000'000;  // 14 h at 20 fps, 17 min at 1 kHz
+// Samples of one frame (rows x columns x channels): 8K colour is 2^26.6; a damaged dataspace can
+// state 65,536 x 65,536 x 3, which would size a 25 GB image before any byte is read.
+constexpr hsize_t kMaxFrameSamples = hsize_t{1} << 27;
 
 enum class Layout { kEvkit, kDsec, kEventUtils };
 
@@ -296,7 +299,9 @@ class Hdf5Reader final : public EventReader {
       if (frame_shape_.size() != 3 && !(frame_shape_.size() == 4 && frame_shape_[3] == 3)) {
         throwInFile(path_, "frames/images must be (N, H, W) or (N, H, W, 3)");
       }
-      if (frame_shape_[1] > 65536 || frame_shape_[2] > 65536) {
+      if (frame_shape_[1] > 65536 || frame_shape_[2] > 65536 ||
+          frame_shape_[1] * frame_shape_[2] * (frame_shape_.size() == 4 ? 3 : 1) >
+              kMaxFrameSamples) {
         throwInFile(path_, "frames/images has implausible dimensions");
       }
       const hsize_t n = frame_shape_[0];
@@ -363,8 +368,8 @@ class Hdf5Reader final : public EventReader {
       H5Handle ds = open(name);
       const auto shape = datasetShape(ds.get());
       if ((shape.size() != 2 && !(shape.size() == 3 && shape[2] == 3)) || shape[0] > 65536 ||
-          shape[1] > 65536) {
-        throwInFile(path_, name + " must be (H, W) or (H, W, 3)");
+          shape[1] > 65536 || shape[0] * shape[1] * (shape.size() == 3 ? 3 : 1) > kMaxFrameSamples) {
+        throwInFile(path_, name + " must be (H, W) or (H, W, 3), of at most 2^27 samples");
       }
       H5Handle type(H5Dget_type(ds.get()));
       const bool wide = H5Tget_size(type.get()) >= 2;

@@ -478,6 +478,21 @@ TEST(Hdf5Io, FramesChunkedAcrossFramesAndRowsReadBackWithTheFillValue) {
       }
     }
   }
+
+  // Frames of 65,536 x 65,536, never written (the file stays small): refused before a 4 GB image is
+  // allocated for the first.
+  const hid_t g = H5Fopen(path.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+  ASSERT_GE(H5Ldelete(g, "frames/images", H5P_DEFAULT), 0);
+  const hsize_t huge[3] = {3, 65536, 65536}, tile[3] = {1, 256, 256};
+  const hid_t huge_dcpl = H5Pcreate(H5P_DATASET_CREATE);
+  H5Pset_chunk(huge_dcpl, 3, tile);
+  const hid_t huge_space = H5Screate_simple(3, huge, nullptr);
+  H5Dclose(H5Dcreate2(g, "frames/images", H5T_STD_U8LE, huge_space, H5P_DEFAULT, huge_dcpl,
+                      H5P_DEFAULT));
+  H5Sclose(huge_space);
+  H5Pclose(huge_dcpl);
+  H5Fclose(g);
+  expectRefused(path, "frames/images has implausible dimensions");
 }
 
 // A damaged millisecond origin: t_offset at int64's ends. The evkit layout's index is ignored (the
