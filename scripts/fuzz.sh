@@ -67,9 +67,12 @@ with h5py.File(sys.argv[2], "w") as f:  # the plugins' filters (Debian's hdf5-fi
     g.create_dataset("p", data=rng.integers(0, 2, n).astype("i1") * 2 - 1, chunks=(n,),
                      compression=32004)
 PY
-  # Frames and attributes: evkit's layout with deflated frames chunked across frames and rows, and
-  # event_utils' with times in seconds, polarities as h5py's bool (an enum) and timestamped images.
-  /usr/bin/python3 - "$seeds/hdf5/e.h5" "$seeds/hdf5/f.h5" <<'PY' || echo "fuzz: h5py could not write the seed files of frames"
+fi
+# Frames and attributes: evkit's layout with deflated frames chunked across frames and rows, and
+# event_utils' with times in seconds, polarities as h5py's bool (an enum) and timestamped images.
+# Written to the work folder: the frames also seed the AEDAT 4.0 reader below.
+if /usr/bin/python3 -c 'import h5py' 2>/dev/null; then
+  /usr/bin/python3 - "$work/e.h5" "$work/f.h5" <<'PY' || echo "fuzz: h5py could not write the seed files of frames"
 import sys
 import h5py
 import numpy as np
@@ -102,9 +105,15 @@ with h5py.File(sys.argv[2], "w") as f:
                               chunks=(13, 34), compression="gzip" if i else None)
         d.attrs["timestamp"] = 0.03 + 0.05 * i
 PY
+  [ -d "$seeds/hdf5" ] && cp "$work/e.h5" "$work/f.h5" "$seeds/hdf5/" 2>/dev/null
 fi
 [ -d "$seeds/aedat4" ] && ASAN_OPTIONS=detect_leaks=0 "$evkit" convert "$work/demo/random.txt" "$seeds/aedat4/a.aedat4" 2>/dev/null
 [ -d "$seeds/aedat4" ] && ASAN_OPTIONS=detect_leaks=0 "$evkit" convert "$work/demo/random.txt" "$seeds/aedat4/z.aedat4" --compression zstd 2>/dev/null
+# Frames in AEDAT 4.0 (FRME packets, uncompressed so that mutations reach the FlatBuffers), from the
+# HDF5 seed of frames.
+if [ -d "$seeds/aedat4" ] && [ -f "$work/e.h5" ]; then
+  ASAN_OPTIONS=detect_leaks=0 "$evkit" convert "$work/e.h5" "$seeds/aedat4/f.aedat4" --compression none >/dev/null 2>&1
+fi
 
 # Prefixes of the real recordings (the AEDAT 2.0 headers alone are ~175 kB).
 fixtures=../shared/fixtures/real
