@@ -118,9 +118,7 @@ Eigen::Matrix4d hatSE3(const Vector6& xi) {
 }
 
 Vector6 veeSE3(const Eigen::Matrix4d& m) {
-  Vector6 xi;
-  xi << m.topRightCorner<3, 1>(), vee(m.topLeftCorner<3, 3>());
-  return xi;
+  return twist(m.topRightCorner<3, 1>(), vee(m.topLeftCorner<3, 3>()));
 }
 
 SE3 expSE3(const Vector6& xi) {
@@ -130,9 +128,7 @@ SE3 expSE3(const Vector6& xi) {
 
 Vector6 logSE3(const SE3& T) {
   const Vector3 phi = logSO3(T.rotation());
-  Vector6 xi;
-  xi << leftJacobianInverseSO3(phi) * T.translation(), phi;
-  return xi;
+  return twist(leftJacobianInverseSO3(phi) * T.translation(), phi);
 }
 
 Matrix6 adjoint(const SE3& T) {

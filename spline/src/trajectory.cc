@@ -166,7 +166,7 @@ SE3 Trajectory::evaluateSplit(int i, double u, KnotJacobians* J, Vector6* veloci
     Vector3 dp = Vector3::Zero(), w = Vector3::Zero();
     for (int k = 0; k <= 3; ++k) dp += dB[k] * knots_[static_cast<size_t>(i + k)].translation();
     for (int j = 1; j <= 3; ++j) w += P[j] * (db[j] * phi[j]);
-    *velocity << Rt * dp, w;
+    *velocity = twist(Rt * dp, w);
   }
   if (J) {
     J->first_knot = i;

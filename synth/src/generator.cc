@@ -137,10 +137,10 @@ Trajectory makeShake(const Scene& scene, const Calibration& camera, int width, i
   // rotation and translation follows rotation_share, then one scale sets the blur length.
   std::vector<Vector6> xi;
   for (int k = 0; k < std::max(4, options.knots); ++k) {
-    Vector6 v;
-    v << Vector3(n(rng), n(rng), 0.3 * n(rng)) * 0.01 * (1.0 - options.rotation_share),
-        Vector3(n(rng), n(rng), 0.3 * n(rng)) * 0.01 * options.rotation_share;
-    xi.push_back(v);
+    const Vector3 rho =
+        Vector3(n(rng), n(rng), 0.3 * n(rng)) * 0.01 * (1.0 - options.rotation_share);
+    const Vector3 phi = Vector3(n(rng), n(rng), 0.3 * n(rng)) * 0.01 * options.rotation_share;
+    xi.push_back(twist(rho, phi));
   }
   // One scale s_r for the rotations and s_t for the translations, found on the blur length (it
   // grows monotonically with each): without share_of_image_motion one common scale, by fixed-point

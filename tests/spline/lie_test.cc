@@ -128,9 +128,9 @@ TEST(SO3, SeriesAgreeWithLongDoubleClosedFormsAndAreContinuous) {
     const Vector3 axis = Vector3(1, -2, 0.5).normalized();
     const double step = threshold * 1e-12;
     const Matrix6 below =
-        leftJacobianInverseSE3((Vector6() << 0.3, 0.1, -0.2, axis * (threshold - step)).finished());
+        leftJacobianInverseSE3(twist(Vector3(0.3, 0.1, -0.2), axis * (threshold - step)));
     const Matrix6 above =
-        leftJacobianInverseSE3((Vector6() << 0.3, 0.1, -0.2, axis * (threshold + step)).finished());
+        leftJacobianInverseSE3(twist(Vector3(0.3, 0.1, -0.2), axis * (threshold + step)));
     EXPECT_LT((below - above).cwiseAbs().maxCoeff(), 2.0 * 2 * step) << threshold;
   }
 }
@@ -167,8 +167,8 @@ TEST(SE3, JacobiansAgainstCentralDifferencesAtHardAngles) {
   std::mt19937_64 rng(5);
   for (double theta : kAngles) {
     for (double rho_scale : {0.0, 1e-3, 1.0, 5.0}) {
-      Vector6 xi;
-      xi << randomAxis(rng) * rho_scale, randomAxis(rng) * theta;
+      const Vector3 rho = randomAxis(rng) * rho_scale;
+      const Vector6 xi = twist(rho, randomAxis(rng) * theta);
       const std::string at =
           "theta " + std::to_string(theta) + " |rho| " + std::to_string(rho_scale);
       const auto fr = [&](const Eigen::VectorXd& d) -> Eigen::VectorXd {

@@ -21,10 +21,9 @@ std::vector<SE3> randomKnots(int n, double step, uint64_t seed) {
   std::vector<SE3> knots{
       SE3(expSO3(Vector3(g(rng), g(rng), g(rng)) * 0.3), Vector3(g(rng), g(rng), g(rng)))};
   for (int k = 1; k < n; ++k) {
-    Vector6 xi;
-    xi << Vector3(g(rng), g(rng), g(rng)).normalized() * step,
-        Vector3(g(rng), g(rng), g(rng)).normalized() * step;
-    knots.push_back(knots.back() * expSE3(xi));
+    const Vector3 rho = Vector3(g(rng), g(rng), g(rng)).normalized() * step;
+    const Vector3 phi = Vector3(g(rng), g(rng), g(rng)).normalized() * step;
+    knots.push_back(knots.back() * expSE3(twist(rho, phi)));
   }
   return knots;
 }

@@ -65,6 +65,16 @@ class SE3 {
   Vector3 t_;
 };
 
+// The twist (rho, phi): translation part first, rotation part last. Written by halves: GCC 12 at
+// -O2 and above with AVX (and without AVX-512) flags the comma initializer `xi << rho, phi` as
+// reading past a 3-vector temporary (a false -Warray-bounds inside Eigen's packet loads).
+inline Vector6 twist(const Vector3& rho, const Vector3& phi) {
+  Vector6 xi;
+  xi.head<3>() = rho;
+  xi.tail<3>() = phi;
+  return xi;
+}
+
 Eigen::Matrix4d hatSE3(const Vector6& xi);
 Vector6 veeSE3(const Eigen::Matrix4d& m);
 
