@@ -132,22 +132,36 @@ fi
 [ -d "$seeds/evt2" ] && printf '%% evt 2.0\n%% geometry 640x480\n\x0a\x00\x00\x80\x09\x38\x40\x11' > "$seeds/evt2/a.raw"
 [ -d "$seeds/dat" ] && printf '%% Version 2\n%% Width 304\n%% Height 240\n\x0c\x08\x64\x00\x00\x00\x2c\x41\x04\x10' > "$seeds/dat/a.dat"
 
+# One reader per core at a time: each fuzzer runs on one thread, so on 2 cores two at once take the
+# time of one.
+fuzz_one() {
+  local r=$1 corpus="$work/corpus-$1"
+  mkdir -p "$corpus"
+  ASAN_OPTIONS=detect_leaks=1:allocator_may_return_null=0 LSAN_OPTIONS=suppressions=tests/fuzz/lsan.supp \
+    EVKIT_FUZZ_DIR="$work" \
+    "build-fuzz/tests/fuzz/fuzz_$r" "$corpus" "$seeds/$r" -max_total_time="$seconds" -timeout=10 \
+    -malloc_limit_mb=512 -rss_limit_mb=3000 -max_len=262144 -seed="${EVKIT_FUZZ_SEED:-1}" -print_final_stats=1 \
+    -artifact_prefix="build-fuzz/artifacts/$r-" > "$work/$r.log" 2>&1
+}
+slots=$(nproc)
+declare -A pid_of
+for r in "${readers[@]}"; do
+  while [ "$(jobs -rp | wc -l)" -ge "$slots" ]; do wait -n || true; done
+  echo "== fuzz $r for ${seconds}s"
+  fuzz_one "$r" &
+  pid_of[$r]=$!
+done
+
 failed=0
 for r in "${readers[@]}"; do
-  corpus="$work/corpus-$r"
-  mkdir -p "$corpus"
-  echo "== fuzz $r for ${seconds}s"
-  if ! ASAN_OPTIONS=detect_leaks=1:allocator_may_return_null=0 LSAN_OPTIONS=suppressions=tests/fuzz/lsan.supp \
-      EVKIT_FUZZ_DIR="$work" \
-      "build-fuzz/tests/fuzz/fuzz_$r" "$corpus" "$seeds/$r" -max_total_time="$seconds" -timeout=10 \
-      -malloc_limit_mb=512 -rss_limit_mb=3000 -max_len=262144 -seed="${EVKIT_FUZZ_SEED:-1}" -print_final_stats=1 \
-      -artifact_prefix="build-fuzz/artifacts/$r-" > "$work/$r.log" 2>&1; then
+  if ! wait "${pid_of[$r]}"; then
     echo "fuzz $r: FAILED (log: $work/$r.log)"
     tail -40 "$work/$r.log"
     failed=1
   else
+    echo "fuzz $r:"
     grep -E "stat::number_of_executed_units|cov:" "$work/$r.log" | tail -2 | sed "s/^/  /"
-    echo "  corpus: $(ls "$corpus" | wc -l) inputs"
+    echo "  corpus: $(ls "$work/corpus-$r" | wc -l) inputs"
   fi
 done
 exit $failed
