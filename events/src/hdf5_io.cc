@@ -41,6 +41,11 @@ constexpr hsize_t kMaxFrames = 1'000'000;  // 14 h at 20 fps, 17 min at 1 kHz
 // state 65,536 x 65,536 x 3, which would size a 25 GB image before any byte is read.
 constexpr hsize_t kMaxFrameSamples = hsize_t{1} << 27;
 
+// Whether a frame of rows x columns x channels is one a camera could have written.
+bool plausibleFrame(hsize_t rows, hsize_t cols, hsize_t channels) {
+  return rows <= 65536 && cols <= 65536 && rows * cols * channels <= kMaxFrameSamples;
+}
+
 enum class Layout { kEvkit, kDsec, kEventUtils };
 
 H5Handle openDataset(hid_t file, const std::string& name, const std::string& path) {
@@ -299,9 +304,7 @@ class Hdf5Reader final : public EventReader {
       if (frame_shape_.size() != 3 && !(frame_shape_.size() == 4 && frame_shape_[3] == 3)) {
         throwInFile(path_, "frames/images must be (N, H, W) or (N, H, W, 3)");
       }
-      if (frame_shape_[1] > 65536 || frame_shape_[2] > 65536 ||
-          frame_shape_[1] * frame_shape_[2] * (frame_shape_.size() == 4 ? 3 : 1) >
-              kMaxFrameSamples) {
+      if (!plausibleFrame(frame_shape_[1], frame_shape_[2], frame_shape_.size() == 4 ? 3 : 1)) {
         throwInFile(path_, "frames/images has implausible dimensions");
       }
       const hsize_t n = frame_shape_[0];
@@ -367,8 +370,8 @@ class Hdf5Reader final : public EventReader {
       const std::string& name = event_utils_images_[i].second;
       H5Handle ds = open(name);
       const auto shape = datasetShape(ds.get());
-      if ((shape.size() != 2 && !(shape.size() == 3 && shape[2] == 3)) || shape[0] > 65536 ||
-          shape[1] > 65536 || shape[0] * shape[1] * (shape.size() == 3 ? 3 : 1) > kMaxFrameSamples) {
+      if ((shape.size() != 2 && !(shape.size() == 3 && shape[2] == 3)) ||
+          !plausibleFrame(shape[0], shape[1], shape.size() == 3 ? 3 : 1)) {
         throwInFile(path_, name + " must be (H, W) or (H, W, 3), of at most 2^27 samples");
       }
       H5Handle type(H5Dget_type(ds.get()));
