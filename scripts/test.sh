@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # The README's second command (and all that CI runs): install what is missing, build, run the whole
-# test suite; fuzz every reader for 20 s (libFuzzer); then the same suite under AddressSanitizer +
-# UndefinedBehaviorSanitizer. EVKIT_SKIP_FUZZ=1 / EVKIT_SKIP_SANITIZE=1 skip those passes (quicker
-# local runs); EVKIT_FUZZ_SECONDS changes the fuzzing time per reader.
+# test suite; fuzz every reader for 20 s (libFuzzer), one per core at a time; then the suite under
+# AddressSanitizer + UndefinedBehaviorSanitizer, where the accuracy tests that train for hundreds of
+# steps skip because shorter tests reach their code (scripts/sanitizer_coverage.sh measures it).
+# EVKIT_SKIP_FUZZ=1 / EVKIT_SKIP_SANITIZE=1 skip those passes (quicker local runs);
+# EVKIT_FUZZ_SECONDS changes the fuzzing time per reader.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 

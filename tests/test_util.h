@@ -9,6 +9,7 @@
 #include <array>
 #include <cstdint>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -31,6 +32,20 @@ inline constexpr bool kSanitized = false;
 #else
 inline constexpr bool kSanitized = false;
 #endif
+
+// Whether this run is the sanitizer pass, in which the long accuracy tests skip: the sanitizer
+// build, or EVKIT_TEST_AS_SANITIZED=1 in any build (scripts/sanitizer_coverage.sh runs the pass so
+// to measure which lines only the skipped tests reach).
+inline bool sanitizerPass() {
+  static const bool pass = kSanitized || std::getenv("EVKIT_TEST_AS_SANITIZED") != nullptr;
+  return pass;
+}
+
+// Why an accuracy test skips in the sanitizer pass: it trains for hundreds of steps (a minute or
+// two there on 2 cores), and the pass's shorter tests reach its code (scripts/sanitizer_coverage.sh
+// lists the lines they do not). Its numbers are checked in the Release pass.
+inline constexpr const char* kReachedByShorterTests =
+    "an accuracy run whose code shorter tests reach under the sanitizers";
 
 // A fresh folder removed at the end of the test.
 class ScratchDir {

@@ -29,7 +29,8 @@
 namespace evkit {
 namespace {
 
-using test::kSanitized;
+using test::kReachedByShorterTests;
+using test::sanitizerPass;
 using test::ScratchDir;
 
 Observation makeObservation(int width, int height, double blur_px, uint64_t seed,
@@ -273,6 +274,7 @@ Vector3 exposureRotation(const std::vector<StampedPose>& poses) {
 }
 
 TEST(Benerf, MiddleFrameBeatsTheBlurryInputAndTheRotationIsRecovered) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   const Observation& obs = tinyScene();
   BenerfDeblurrer benerf(smallBudget());
   const DeblurResult r = benerf.run(obs, DeblurRequest{{obs.blurry.midExposure()}, {}});
@@ -394,6 +396,7 @@ double imageMotionError(const ExposureMotion& m, const Observation& obs, const c
 // scene is one plane, a sideways translation and a tilt move the image alike: the part of the
 // rotation the translation mimics is not observable.)
 TEST(Benerf, MotionFromLatentFramesFindsTheRotationAndTheParallax) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   for (const bool card : {false, true}) {
     for (const uint64_t seed : {1, 2}) {
       const auto natural = naturalObservation(card ? "hubble_rocket" : "coffee_plane", seed);
@@ -544,6 +547,7 @@ TEST(Benerf, RepeatedTextureIsTheFlowsRepeatWithinItsReach) {
 // 0.52; without the choice 0.50 and 0.58), and the rotation over the exposure (3.2 degrees) within
 // 0.95 degrees of the truth on average (measured 0.70 and 0.99; without the choice 0.93 and 1.33).
 TEST(Benerf, TheRegisteredDepthsFollowTheNearLayerAndTheirOffsetTheFlows) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   double near_error = 0, ratio = 0, rotation_error = 0;
   const std::vector<NaturalRegistration> registered = registerNatural("hubble_rocket");
   if (registered.empty()) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
@@ -577,6 +581,7 @@ TEST(Benerf, TheRegisteredDepthsFollowTheNearLayerAndTheirOffsetTheFlows) {
 // motion error on the cup at the exposure's ends under 0.65 px (measured 0.43 and 0.70; bounded,
 // 0.47 and 0.89).
 TEST(Benerf, TheRegisteredDepthsReachANearObjectThatFewTracksSee) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   double ratio = 0, near_error = 0;
   const std::vector<NaturalRegistration> registered = registerNatural("rocket_layers");
   if (registered.empty()) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
@@ -622,6 +627,7 @@ TEST(Benerf, PrefitFitsEdisLatentFrames) {
 // over fixed pieces, Fields.HashFieldAndAdamGiveTheSameBitsOnOneThreadAndTwo); another seed
 // differs.
 TEST(Benerf, DeterministicForASeedAtAnyThreadCount) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   const Observation& obs = tinyScene();
   BenerfOptions o = smallBudget();
   o.iterations = 30;
@@ -668,6 +674,7 @@ TEST(Benerf, WithThreadsAutoARunLeavesABusyCoreAlone) {
 }
 
 TEST(Benerf, ResumingFromACheckpointContinuesTheSameRun) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   const Observation& obs = tinyScene();
   ScratchDir dir;
   BenerfOptions o = smallBudget();
@@ -1288,7 +1295,7 @@ std::optional<Observation> heldOutNoisy(const std::filesystem::path& dir, const 
 // motion registered, 41.01); without them (kOnePixel) there are no poses. At the suite's size, so
 // not under the sanitizers, where the simulation alone takes minutes; none without the photographs.
 TEST(Benerf, RegistrationFitsAgainToThePointsThatFired) {
-  if (kSanitized) GTEST_SKIP() << "a 346 x 260 simulation: minutes under the sanitizers";
+  if (sanitizerPass()) GTEST_SKIP() << "a 346 x 260 simulation: minutes under the sanitizers";
   ScratchDir dir;
   const std::optional<Observation> held_out = heldOutNoisy(dir.path(), "four_layers", 714, 40, 0.4);
   if (!held_out) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
@@ -1322,7 +1329,7 @@ TEST(Benerf, RegistrationFitsAgainToThePointsThatFired) {
 // dB ahead of EDI (measured 43.49 dB). At the suite's size, so not under the
 // sanitizers; none without the photographs.
 TEST(Benerf, AtADepthEdgePixelsWithoutFlowsTakeTheNearSideWhereTheDataPreferIt) {
-  if (kSanitized) GTEST_SKIP() << "a 346 x 260 simulation: minutes under the sanitizers";
+  if (sanitizerPass()) GTEST_SKIP() << "a 346 x 260 simulation: minutes under the sanitizers";
   ScratchDir dir;
   const std::optional<Observation> held_out =
       heldOutNoisy(dir.path(), "cameraman_grass", 954, 44, 0.4);
@@ -1361,6 +1368,7 @@ TEST(Benerf, AtADepthEdgePixelsWithoutFlowsTakeTheNearSideWhereTheDataPreferIt) 
 // with noisy events (rocket_layers, 12 px, seed 704; measured 0.90) and one photograph on a plane
 // (coffee_plane, 12 px, seed 808; measured 0.20).
 TEST(Benerf, TheTilesDepartFromThePlaneAlikeInBothHalvesWhereTheSceneHasDepth) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   const auto agreement = [](const Observation& obs) {
     const nerf::PinholeCamera camera =
         obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows);
@@ -1383,7 +1391,7 @@ TEST(Benerf, TheTilesDepartFromThePlaneAlikeInBothHalvesWhereTheSceneHasDepth) {
 // with 10 px of parallax, and the plane ran (38.35 dB at `fast`, EDI 35.25); with the depths
 // 39.32. At the suite's size, so not under the sanitizers; none without the photographs.
 TEST(Benerf, TheDepthsAreChosenWhereTheyDepartFromThePlaneAlikeInBothHalves) {
-  if (kSanitized) GTEST_SKIP() << "a 346 x 260 simulation: minutes under the sanitizers";
+  if (sanitizerPass()) GTEST_SKIP() << "a 346 x 260 simulation: minutes under the sanitizers";
   ScratchDir dir;
   const std::optional<Observation> held_out =
       heldOutNoisy(dir.path(), "rocket_layers", 704, 25, 0.6);
@@ -1437,6 +1445,7 @@ Observation presetObservation(const std::string& preset, double blur_px, double 
 // translation in equal parts of the image motion, a 30 ms pre-roll. Measured: the event term at
 // the truth 0.0934 -> 0.0896, BeNeRF 35.40 -> 39.29 dB (EDI 34.25).
 TEST(Benerf, TheEventsAreReadAsTheSensorsReferenceLevel) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   const auto natural = prerolledNatural("cat_bricks", 1, 15, 0.5, false);
   if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
   const Observation& obs = *natural;
@@ -1487,6 +1496,7 @@ TEST(Benerf, TheEventsAreReadAsTheSensorsReferenceLevel) {
 // a 30 ms pre-roll: the image motion closer to the truth and the frame sharper than with the
 // refinement from EDI's frame alone (measured 0.359 -> 0.297 px, 39.29 -> 39.73 dB; EDI 34.25).
 TEST(Benerf, TheMotionIsRefinedAgainFromTheSolvedImage) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   const auto natural = prerolledNatural("cat_bricks", 1, 15, 0.5, false);
   if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
   const Observation& obs = *natural;
@@ -1514,6 +1524,7 @@ TEST(Benerf, TheMotionIsRefinedAgainFromTheSolvedImage) {
 // with occlusion boundaries are level with EDI and the rocket before a backdrop 1.7 dB below it; at
 // the suite's size they are 0.9 and 0.6 dB above it.)
 TEST(Benerf, PixelGridIsSharperThanEdiOnNaturalScenes) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   for (const char* scene : {"coffee_plane", "motorcycle"}) {
     const auto natural = naturalObservation(scene, 1);
     if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
@@ -1536,6 +1547,7 @@ TEST(Benerf, PixelGridIsSharperThanEdiOnNaturalScenes) {
 // 0.221 along the motion registered at EDI's 0.5 and 0.206 along the one registered at 0.221,
 // 0.214 after the solves, 32.9 dB against EDI's 20.8 with its searched c.
 TEST(Benerf, ThresholdsNotGivenAreTheScaleThatTheMotionExplains) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   const auto natural = naturalObservation("motorcycle", 1);
   if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
   double truth = 0;
@@ -1633,6 +1645,7 @@ TEST(Benerf, TheThresholdsFromTheCountsAreNotBiasedByNoiseEvents) {
 // counts follow the c of their motion here by an exponent of 0.48, under the bar of 0.75 beyond
 // which the grid would decline (the hash field: 19.54 dB).
 TEST(Benerf, WithoutThresholdsEachPixelsMisfitCountsByItsEvents) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   const auto natural = prerolledNatural("rocket_layers", 403, 15, 0.15, true);
   if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
   double truth = 0;
@@ -1656,6 +1669,7 @@ TEST(Benerf, WithoutThresholdsEachPixelsMisfitCountsByItsEvents) {
 // after, and three solves end at 0.213 (the truth is 0.2), 35.7 dB. Both within 15% of the truth,
 // and BeNeRF 5 dB ahead of EDI.
 TEST(Benerf, ThresholdsNotGivenAreRefinedByShortSolvesOfTheGrid) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   const auto natural = naturalObservation("cameraman_grass", 1, 30);
   if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
   double truth = 0;
@@ -1677,6 +1691,7 @@ TEST(Benerf, ThresholdsNotGivenAreRefinedByShortSolvesOfTheGrid) {
 // suite's noise. Measured: c 0.205 and 0.211 (the truth 0.2), 38.49 and 39.05 dB; with the walk's
 // motions unrefined 0.220 and 0.233, 37.30 and 37.70 dB.
 TEST(Benerf, WithoutThresholdsTheWalksMotionsAreRefinedBeforeTheyScoreAC) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   for (const auto& [scene, noisy] : {std::pair{"astronaut_plane", false}, {"coffee_plane", true}}) {
     SCOPED_TRACE(scene);
     const auto natural = prerolledNatural(scene, 1, 15, 0.7, noisy);
@@ -1736,7 +1751,7 @@ double summaryMisfit(const std::map<std::string, double>& p) {
 // searched c 37.55); with the band the grid runs on the motion registered at its own c, 42.84. At
 // the suite's size, so not under the sanitizers; none without the photographs.
 TEST(Benerf, WithoutThresholdsTheMotionAtTheCountsCMayMisfitAsWithThem) {
-  if (kSanitized) GTEST_SKIP() << "a 346 x 260 simulation: minutes under the sanitizers";
+  if (sanitizerPass()) GTEST_SKIP() << "a 346 x 260 simulation: minutes under the sanitizers";
   ScratchDir dir;
   const std::optional<Observation> held_out = heldOutNoisy(dir.path(), "four_layers", 951, 40, 0.5);
   if (!held_out) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
@@ -1762,6 +1777,7 @@ TEST(Benerf, WithoutThresholdsTheMotionAtTheCountsCMayMisfitAsWithThem) {
 // searched c. Four samples per ray (the scene is one surface) keep the test cheap under the
 // sanitizers: 37.7 dB at eight, in 45% more time.
 TEST(Benerf, WithoutThresholdsTheGridDeclinesWhereItsStartMisfits) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   double truth = 0;
   const AtMidExposure m = withoutThresholds(presetObservation("rgbd", 15), &truth, 4);
   const auto& p = m.benerf.parameters;
@@ -1894,6 +1910,7 @@ TEST(Benerf, PixelGridTakesTheKnotsOfAMotionThatTurns) {
 // 120 x 90, 20 px: measured 8 knots from 17 poses and 31.1 dB, against 24.0 dB with the 6 knots of
 // nine poses (EDI 33.3; at 346 x 260 BeNeRF is ahead of EDI, BENCHMARKS.md "A motion that turns").
 TEST(Benerf, PixelGridRegistersAMotionThatTurnsFourTimesAtMoreTimes) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   const Observation obs = presetObservation("text", 20, 0, 0.2, 8);
   const AtMidExposure dense = benerfAndEdi(obs);
   const auto& p = dense.benerf.parameters;
@@ -1964,6 +1981,7 @@ TEST(Benerf, PixelGridKeepsEdisFrameWhereItsModelCannotTellTheBlur) {
 // against EDI's 32.91; the start's misfit 0.049, its change 0.053). Eight samples: 36.77 dB, in 80%
 // more time.
 TEST(Benerf, PixelGridLeavesAStartItWouldKeepAtALongerBlurToTheHashField) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   BenerfOptions o = benerfBudget("fast");
   o.iterations = 300;
   o.samples = 4;
@@ -1983,6 +2001,7 @@ TEST(Benerf, PixelGridLeavesAStartItWouldKeepAtALongerBlurToTheHashField) {
 // (`max_views`), and `views` fixes the count as it does for the fields. Planes at 120 x 90 with
 // 40 px of blur, two L-BFGS steps each.
 TEST(Benerf, PixelGridTakesOneViewPerPixelOfBlurUpToItsBoundOrTheViewsSetting) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   const Observation obs = presetObservation("planes", 40);
   const DeblurRequest request{{obs.blurry.midExposure()}, {}};
   BenerfOptions o = benerfBudget("fast");
@@ -2003,6 +2022,7 @@ TEST(Benerf, PixelGridTakesOneViewPerPixelOfBlurUpToItsBoundOrTheViewsSetting) {
 // solves) gives the same bits at one thread and at three: the image, the trajectory and every
 // figure of the summary but the thread count.
 TEST(Benerf, PixelGridGivesTheSameBitsAtAnyThreadCount) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   const Observation obs = presetObservation("planes", 15);
   const DeblurRequest request{{obs.blurry.midExposure()}, {}};
   BenerfOptions o = benerfBudget("fast");
@@ -2060,6 +2080,7 @@ TEST(Benerf, PixelGridChoosesItsSmoothnessByHeldOutEvents) {
 // the brightness (the channels' mean) 35.3 -> 35.7, the chroma's errors no longer leaking into it
 // (at 30 px of blur: 30.3 -> 35.1, 25.4 -> 27.3 and 27.1 -> 28.1).
 TEST(Benerf, PixelGridSmoothsTheChromaTheEventsDoNotSee) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   const auto natural = naturalObservation("cat_bricks", 1);
   if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
   ASSERT_EQ(natural->blurry.image.channels(), 3);
@@ -2172,6 +2193,7 @@ TEST(Benerf, TheLensChosenIsRegisteredThroughEachPixelsDepth) {
 // lets the drifted comparisons weigh less (measured here 27.0 -> 29.3; on the noisy suite's text at
 // 40 px, 29.7 -> 32.9).
 TEST(PixelGrid, ShortEventWindowsAndARobustMidHoldThePixelsThresholdMismatch) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   const Observation obs = presetObservation("text", 30, 0.03);
   const nerf::PinholeCamera camera = obs.camera.withSize(120, 90);
   const ExposureMotion m = motionFromLatentFrames(obs, camera, obs.contrast);
