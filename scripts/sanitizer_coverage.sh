@@ -4,7 +4,7 @@
 # reach their code; this measures that claim. It builds the tests with gcov (build-coverage), runs
 # the suite as the sanitizer pass runs it (EVKIT_TEST_AS_SANITIZED=1), then each test that skipped,
 # alone, and prints for each the lines of evkit's libraries that only it reached. Not part of CI;
-# about 15 minutes on 2 cores. Run it after adding a test that skips, or code that only such a test
+# about 25 minutes on 2 cores. Run it after adding a test that skips, or code that only such a test
 # reaches.
 set -euo pipefail
 cd "$(dirname "$0")/.."
