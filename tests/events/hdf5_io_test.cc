@@ -589,7 +589,6 @@ void writeEventUtils(const std::string& path, bool bool_polarity = false) {
   H5Sclose(space);
   H5Gclose(g);
   H5Fclose(f);
-
 }
 
 TEST(Hdf5Io, ReadsTheEventUtilsLayoutWithImages) {
@@ -687,6 +686,47 @@ TEST(Hdf5Io, DatatypesWithinDatatypesAreChecked) {
   bytes.replace(base_size, 4, std::string("\x01\0\xff\xff", 4));
   test::writeText(dir / "huge.h5", bytes);
   expectRefused(dir / "huge.h5", "datatype of 'events/ps': a number of 4294901761 bytes");
+}
+
+// A committed (named) datatype lives in its own object header; a dataset or attribute that uses it
+// holds a shared datatype message, a reference there, in place of the type. evkit does not follow
+// such references (a version-1 one was once misread as a float of 0 bytes): the file is refused
+// with the reason, for a dataset evkit reads and for an attribute of an object it reads. A
+// committed type that nothing evkit reads uses is no reason to refuse the file.
+TEST(Hdf5Io, SharedDatatypesAreRefusedByName) {
+  ScratchDir dir;
+  enum class Use { kNothing, kDataset, kAttribute };
+  const auto withCommittedType = [&](const std::string& name, Use use) {
+    const std::string path = dir / name;
+    writeEventUtils(path);
+    const hid_t f = H5Fopen(path.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+    const hid_t type = H5Tcopy(H5T_STD_U16LE);
+    EXPECT_GE(H5Tcommit2(f, "u16", type, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT), 0);
+    const hsize_t n = 4;
+    const hid_t space = H5Screate_simple(1, &n, nullptr);
+    const std::vector<uint16_t> xs = {1, 2, 3, 4};
+    if (use == Use::kDataset) {
+      H5Ldelete(f, "events/xs", H5P_DEFAULT);
+      const hid_t ds =
+          H5Dcreate2(f, "events/xs", type, space, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+      H5Dwrite(ds, H5T_NATIVE_UINT16, H5S_ALL, H5S_ALL, H5P_DEFAULT, xs.data());
+      H5Dclose(ds);
+    } else if (use == Use::kAttribute) {
+      const hid_t a = H5Acreate2(f, "calibration", type, space, H5P_DEFAULT, H5P_DEFAULT);
+      H5Awrite(a, H5T_NATIVE_UINT16, xs.data());
+      H5Aclose(a);
+    }
+    H5Sclose(space);
+    H5Tclose(type);
+    H5Fclose(f);
+    return path;
+  };
+  EXPECT_EQ(readRecording(withCommittedType("unused.h5", Use::kNothing)).events.x,
+            (std::vector<uint16_t>{1, 2, 3, 4}));
+  expectRefused(withCommittedType("dataset.h5", Use::kDataset),
+                "object header of 'events/xs': a shared (committed) datatype");
+  expectRefused(withCommittedType("attribute.h5", Use::kAttribute),
+                "an attribute of the root group: a shared (committed) datatype");
 }
 
 TEST(Hdf5Io, WriterLeavesNothingWhenAbandonedAndRejectsUnsortedEvents) {
