@@ -33,6 +33,9 @@ using test::kReachedByShorterTests;
 using test::sanitizerPass;
 using test::ScratchDir;
 
+// Why a test at the suite's size skips in the sanitizer pass.
+constexpr const char* kSuiteSizeSimulation = "a 346 x 260 simulation: minutes under the sanitizers";
+
 Observation makeObservation(int width, int height, double blur_px, uint64_t seed,
                             const std::string& preset = "planes", double rotation_share = 0.7) {
   ScratchDir dir;
@@ -1295,7 +1298,7 @@ std::optional<Observation> heldOutNoisy(const std::filesystem::path& dir, const 
 // motion registered, 41.01); without them (kOnePixel) there are no poses. At the suite's size, so
 // not under the sanitizers, where the simulation alone takes minutes; none without the photographs.
 TEST(Benerf, RegistrationFitsAgainToThePointsThatFired) {
-  if (sanitizerPass()) GTEST_SKIP() << "a 346 x 260 simulation: minutes under the sanitizers";
+  if (sanitizerPass()) GTEST_SKIP() << kSuiteSizeSimulation;
   ScratchDir dir;
   const std::optional<Observation> held_out = heldOutNoisy(dir.path(), "four_layers", 714, 40, 0.4);
   if (!held_out) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
@@ -1329,7 +1332,7 @@ TEST(Benerf, RegistrationFitsAgainToThePointsThatFired) {
 // dB ahead of EDI (measured 43.49 dB). At the suite's size, so not under the
 // sanitizers; none without the photographs.
 TEST(Benerf, AtADepthEdgePixelsWithoutFlowsTakeTheNearSideWhereTheDataPreferIt) {
-  if (sanitizerPass()) GTEST_SKIP() << "a 346 x 260 simulation: minutes under the sanitizers";
+  if (sanitizerPass()) GTEST_SKIP() << kSuiteSizeSimulation;
   ScratchDir dir;
   const std::optional<Observation> held_out =
       heldOutNoisy(dir.path(), "cameraman_grass", 954, 44, 0.4);
@@ -1391,7 +1394,7 @@ TEST(Benerf, TheTilesDepartFromThePlaneAlikeInBothHalvesWhereTheSceneHasDepth) {
 // with 10 px of parallax, and the plane ran (38.35 dB at `fast`, EDI 35.25); with the depths
 // 39.32. At the suite's size, so not under the sanitizers; none without the photographs.
 TEST(Benerf, TheDepthsAreChosenWhereTheyDepartFromThePlaneAlikeInBothHalves) {
-  if (sanitizerPass()) GTEST_SKIP() << "a 346 x 260 simulation: minutes under the sanitizers";
+  if (sanitizerPass()) GTEST_SKIP() << kSuiteSizeSimulation;
   ScratchDir dir;
   const std::optional<Observation> held_out =
       heldOutNoisy(dir.path(), "rocket_layers", 704, 25, 0.6);
@@ -1751,7 +1754,7 @@ double summaryMisfit(const std::map<std::string, double>& p) {
 // searched c 37.55); with the band the grid runs on the motion registered at its own c, 42.84. At
 // the suite's size, so not under the sanitizers; none without the photographs.
 TEST(Benerf, WithoutThresholdsTheMotionAtTheCountsCMayMisfitAsWithThem) {
-  if (sanitizerPass()) GTEST_SKIP() << "a 346 x 260 simulation: minutes under the sanitizers";
+  if (sanitizerPass()) GTEST_SKIP() << kSuiteSizeSimulation;
   ScratchDir dir;
   const std::optional<Observation> held_out = heldOutNoisy(dir.path(), "four_layers", 951, 40, 0.5);
   if (!held_out) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
@@ -1774,8 +1777,8 @@ TEST(Benerf, WithoutThresholdsTheMotionAtTheCountsCMayMisfitAsWithThem) {
 // the change), so the walk stops there rather than after three more solves (the counts' c 0.235,
 // truth 0.2; the walk had ended at 0.252 and declined there). The RGB-D scene (smooth shading) at
 // 120 x 90, 15 px of blur, contrast.txt removed: the hash field 36.5 dB against EDI's 26.0 at its
-// searched c. Four samples per ray (the scene is one surface) keep the test cheap under the
-// sanitizers: 37.7 dB at eight, in 45% more time.
+// searched c. Four samples per ray (the scene is one surface) keep the test cheap: 37.7 dB at
+// eight, in 45% more time.
 TEST(Benerf, WithoutThresholdsTheGridDeclinesWhereItsStartMisfits) {
   if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   double truth = 0;
