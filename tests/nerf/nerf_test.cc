@@ -214,9 +214,11 @@ void checkField(RadianceField<double>& field, const std::string& name) {
   }
 }
 
-// Tiny fields for the gradient checks: an MLP with 3 frequencies, a hash grid of 3 levels x 2
-// features with O(1) features instead of the 1e-4 initialisation (ReLU kinks stay far from the
-// finite differences' steps).
+// Tiny fields for the gradient checks: an MLP with 3 frequencies and non-zero biases, a hash grid
+// of 3 levels x 2 features with O(1) features instead of the 1e-4 initialisation (ReLU kinks stay
+// far from the finite differences' steps). With the biases at their initial zero, a sample whose
+// inputs to a layer all died had pre-activations of exactly 0 there, on the kink: the check then
+// failed for about one draw of positions in 25.
 std::unique_ptr<RadianceField<double>> tinyMlpField() {
   MlpFieldConfig mc;
   mc.frequencies = 3;
@@ -224,7 +226,14 @@ std::unique_ptr<RadianceField<double>> tinyMlpField() {
   mc.width = 8;
   mc.skip = 2;
   mc.colour_width = 6;
-  return makeMlpField<double>(mc, 3, 1);
+  auto mlp = makeMlpField<double>(mc, 3, 1);
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<double> u(-0.5, 0.5);
+  std::vector<ParameterBlock<double>> blocks = mlp->parameters();  // weights, biases, per layer
+  for (size_t b = 1; b < blocks.size(); b += 2) {
+    for (size_t i = 0; i < blocks[b].size; ++i) blocks[b].values[i] = u(rng);
+  }
+  return mlp;
 }
 HashFieldConfig tinyHashConfig() {
   HashFieldConfig hc;
