@@ -56,13 +56,16 @@ void BM_MlpField(benchmark::State& state) {
   fieldStep(state, *field, 4096);
 }
 
-// Args: levels, features, log2 table, samples along rays (1) or uniformly random (0).
+// Args: levels, features, log2 table, samples along rays (1) or uniformly random (0), and
+// optionally 0 to run the MLP through Eigen's products instead of the register-blocked kernels
+// (small_layer.h; the reference for them).
 void BM_HashField(benchmark::State& state) {
   HashFieldConfig c;
   c.grid.levels = static_cast<int>(state.range(0));
   c.grid.features = static_cast<int>(state.range(1));
   c.grid.log2_table = static_cast<int>(state.range(2));
   c.grid.per_level_scale = c.grid.levels >= 16 ? 1.38 : 1.5;
+  c.kernels = state.range(4) != 0;
   auto field = makeHashField<float>(c, 3, 1);
   const bool rays = state.range(3) != 0;
   fieldStep(state, *field, 65536, rays);
@@ -70,7 +73,8 @@ void BM_HashField(benchmark::State& state) {
                  std::to_string(c.grid.log2_table) + " entries, " +
                  std::to_string(c.grid.levels * (size_t{1} << c.grid.log2_table) * c.grid.features *
                                 4 / 1000000) +
-                 " MB, " + (rays ? "ray samples" : "random positions"));
+                 " MB, " + (rays ? "ray samples" : "random positions") +
+                 (c.kernels ? "" : ", Eigen's products"));
 }
 
 // Adam's step over the `fast` field (8 x 4, 2^15, 1.05 M parameters) after the forward and backward
@@ -113,13 +117,14 @@ void BM_TrainStepMlp(benchmark::State& state) {
 
 BENCHMARK(BM_MlpField)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_HashField)
-    ->Args({16, 2, 19, 0})
-    ->Args({8, 4, 16, 0})
-    ->Args({8, 4, 16, 1})
-    ->Args({8, 2, 16, 0})
-    ->Args({8, 2, 16, 1})
-    ->Args({12, 2, 16, 0})
-    ->Args({8, 4, 14, 0})
+    ->Args({16, 2, 19, 0, 1})
+    ->Args({8, 4, 16, 0, 1})
+    ->Args({8, 4, 16, 1, 1})
+    ->Args({8, 4, 16, 1, 0})
+    ->Args({8, 2, 16, 0, 1})
+    ->Args({8, 2, 16, 1, 1})
+    ->Args({12, 2, 16, 0, 1})
+    ->Args({8, 4, 14, 0, 1})
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 BENCHMARK(BM_AdamStepHash)->Unit(benchmark::kMillisecond)->UseRealTime();

@@ -302,9 +302,9 @@ class HashField final : public RadianceField<T> {
   Matrix out_;
   Matrix features_, hidden_;   // the last forward's encoding and hidden layer (after the ReLU)
   std::vector<T> d_features_;  // level-major, for the grid's backward
-  // The register-blocked kernels (small_layer.h; AVX-512 targets) for the common shape in float: 32
-  // encoded features (8 x 4, 16 x 2) into 64 hidden units, grey or colour; Eigen's products
-  // otherwise.
+  // The register-blocked kernels (small_layer.h; AVX-512 or AVX2 + FMA) for the common shape in
+  // float: 32 encoded features (8 x 4, 16 x 2) into 64 hidden units, grey or colour; Eigen's
+  // products otherwise.
   bool fast_layers_;
   std::vector<T> level_weight_;  // per level; empty: every level at weight 1
 };

@@ -1,74 +1,107 @@
 // Register-blocked kernels for the hash field's first MLP layer (inputs x hidden, both multiples of
 // 16, float), on a block of samples that stays in the cache. They replace Eigen's general matrix
 // product for these shapes: for a 64 x 32 weight and a few hundred samples, Eigen packs both
-// operands on every call; here the weight columns stream
-// from L1 while 16 accumulators stay in registers (4 samples x 64 outputs, or 4 inputs x 64
-// outputs). Written with the generic vector type of GCC and Clang. Built only for targets with
-// AVX-512 (EVKIT_SMALL_LAYER is then 1): there a 16-float vector is one register; with narrower
-// vectors 16 accumulators of 16 floats would not fit the register file, and Eigen's products are
-// used instead. Sums run in a fixed order: the results depend only on the inputs.
+// operands on every call; here the weight columns stream from L1 while the accumulators stay in
+// registers. Written with the generic vector type of GCC and Clang, for two targets:
+// - AVX-512 (32 registers of 16 floats): products in tiles of 4 samples x 64 outputs, 16
+//   accumulators;
+// - AVX2 with FMA (16 registers of 8 floats): tiles of 2 samples x 32 outputs, 8 accumulators, the
+//   4 weight vectors of a step pinned beside them.
+// EVKIT_SMALL_LAYER is 1 where one of them is the target and 0 otherwise (Eigen's products are
+// then used). Every output element is one sum over the inner index in increasing order, whatever
+// the tiles: the results depend only on the inputs, not on the target's tiling.
 #pragma once
 
-#if defined(__AVX512F__) && defined(__GNUC__)
+#if defined(__GNUC__) && (defined(__AVX512F__) || (defined(__AVX2__) && defined(__FMA__)))
 #define EVKIT_SMALL_LAYER 1
 
+#include <cstddef>
 #include <cstring>
 
 namespace evkit::nerf::small_layer {
 
-using V16 =
-    float __attribute__((vector_size(64)));  // loads and stores through memcpy: no alignment needed
+#if defined(__AVX512F__)
+constexpr int kWidth = 16;      // floats per register
+constexpr int kRegisters = 32;  // vector registers
+constexpr int kTileSamples = 4;
+constexpr int kTileRows = 64;
+#else
+constexpr int kWidth = 8;
+constexpr int kRegisters = 16;
+constexpr int kTileSamples = 2;
+constexpr int kTileRows = 32;
+#endif
 
-inline V16 load(const float* p) {
-  V16 v;
+// One register of floats; loaded and stored through memcpy: no alignment needed.
+using Vec = float __attribute__((vector_size(kWidth * sizeof(float))));
+
+inline Vec load(const float* p) {
+  Vec v;
   std::memcpy(&v, p, sizeof v);
   return v;
 }
-inline void store(float* p, V16 v) { std::memcpy(p, &v, sizeof v); }
-inline V16 splat(float x) { return V16{} + x; }
-// Keeps a loaded vector in a register: without it GCC folds the load into every FMA that uses it
-// (a memory operand per FMA), and the kernels become bound by loads instead of FMAs.
-inline void pin(V16& v) { asm("" : "+v"(v)); }
+inline void store(float* p, Vec v) { std::memcpy(p, &v, sizeof v); }
+// x - 0 is x for every x (x + 0 is not, for x = -0): the broadcast alone, with no zero register.
+inline Vec splat(float x) { return x - Vec{}; }
+// A loaded vector kept in a register: without it GCC folds the load into every FMA that uses it
+// (a memory operand per FMA), and the kernels become bound by loads instead of FMAs. By value: a
+// reference into an array makes GCC store the array to the stack on every step.
+inline Vec pinned(Vec v) {
+  asm("" : "+v"(v));
+  return v;
+}
 
-// A layer's matrix product, four samples at a time: out(:, s) = A in(:, s) (+ bias, then max(0, .)
-// when kRelu), A kRows x inner column-major, in inner x count and out kRows x count column-major;
-// bias may be null (zero).
+// The rows of one tile: kTileRows, or all rows where there are fewer.
+template <int kRows>
+constexpr int tileRows() {
+  static_assert(kRows % kWidth == 0, "rows must be whole vectors");
+  return kRows < kTileRows ? kRows : kTileRows;
+}
+
+// A layer's matrix product, tile by tile: out(:, s) = A in(:, s) (+ bias, then max(0, .) when
+// kRelu), A kRows x inner column-major, in inner x count and out kRows x count column-major; bias
+// may be null (zero).
 template <int kRows, bool kRelu>
 void product(const float* A, const float* bias, int inner, const float* in, int count, float* out) {
-  constexpr int kV = kRows / 16;
-  V16 init[kV];
-  for (int v = 0; v < kV; ++v) init[v] = bias ? load(bias + 16 * v) : V16{};
-  const auto finish = [](V16 a) { return kRelu ? (a > V16{} ? a : V16{}) : a; };
+  constexpr int kR = tileRows<kRows>(), kV = kR / kWidth, kS = kTileSamples;
+  const auto finish = [](Vec a) { return kRelu ? (a > Vec{} ? a : Vec{}) : a; };
   int s = 0;
-  for (; s + 4 <= count; s += 4) {
-    V16 acc[4][kV];
-    for (int v = 0; v < kV; ++v) acc[0][v] = acc[1][v] = acc[2][v] = acc[3][v] = init[v];
+  for (; s + kS <= count; s += kS) {
     const float* in0 = in + static_cast<size_t>(s) * inner;
-    for (int k = 0; k < inner; ++k) {
-      V16 a[kV];
+    for (int r = 0; r < kRows; r += kR) {
+      Vec acc[kS][kV];
       for (int v = 0; v < kV; ++v) {
-        a[v] = load(A + static_cast<size_t>(k) * kRows + 16 * v);
-        pin(a[v]);
+        const Vec b = bias ? load(bias + r + kWidth * v) : Vec{};
+        for (int i = 0; i < kS; ++i) acc[i][v] = b;
       }
-      for (int i = 0; i < 4; ++i) {
-        const V16 xi = splat(in0[static_cast<size_t>(i) * inner + k]);
-        for (int v = 0; v < kV; ++v) acc[i][v] += a[v] * xi;
+      for (int k = 0; k < inner; ++k) {
+        Vec a[kV];
+        for (int v = 0; v < kV; ++v) {
+          a[v] = pinned(load(A + static_cast<size_t>(k) * kRows + r + kWidth * v));
+        }
+        for (int i = 0; i < kS; ++i) {
+          const Vec xi = splat(in0[static_cast<size_t>(i) * inner + k]);
+          for (int v = 0; v < kV; ++v) acc[i][v] += a[v] * xi;
+        }
       }
-    }
-    for (int i = 0; i < 4; ++i) {
-      for (int v = 0; v < kV; ++v)
-        store(out + static_cast<size_t>(s + i) * kRows + 16 * v, finish(acc[i][v]));
+      for (int i = 0; i < kS; ++i) {
+        for (int v = 0; v < kV; ++v)
+          store(out + static_cast<size_t>(s + i) * kRows + r + kWidth * v, finish(acc[i][v]));
+      }
     }
   }
+  // The samples after the last whole tile, one at a time over every row.
+  constexpr int kAll = kRows / kWidth;
   for (; s < count; ++s) {
-    V16 acc[kV];
-    for (int v = 0; v < kV; ++v) acc[v] = init[v];
+    Vec acc[kAll];
+    for (int v = 0; v < kAll; ++v) acc[v] = bias ? load(bias + kWidth * v) : Vec{};
     for (int k = 0; k < inner; ++k) {
-      const V16 xk = splat(in[static_cast<size_t>(s) * inner + k]);
-      for (int v = 0; v < kV; ++v) acc[v] += load(A + static_cast<size_t>(k) * kRows + 16 * v) * xk;
+      const Vec xk = splat(in[static_cast<size_t>(s) * inner + k]);
+      for (int v = 0; v < kAll; ++v)
+        acc[v] += load(A + static_cast<size_t>(k) * kRows + kWidth * v) * xk;
     }
-    for (int v = 0; v < kV; ++v)
-      store(out + static_cast<size_t>(s) * kRows + 16 * v, finish(acc[v]));
+    for (int v = 0; v < kAll; ++v)
+      store(out + static_cast<size_t>(s) * kRows + kWidth * v, finish(acc[v]));
   }
 }
 
@@ -79,29 +112,37 @@ void forwardRelu(const float* W, const float* b, int inputs, const float* x, int
 }
 
 // Weight gradient: dW += dh x^T (dW hidden x inputs column-major, dh hidden x count, x inputs x
-// count), four input columns at a time over all samples.
+// count), in tiles of kTileSamples input columns x the tile's rows, over chunks of 64 samples
+// (their dh and x stay in L1 while every tile passes over them; the sums run over the samples in
+// order).
 template <int kHidden>
 void weightGradient(const float* dh, const float* x, int inputs, int count, float* dW) {
-  constexpr int kV = kHidden / 16;
-  for (int k = 0; k < inputs; k += 4) {
-    const int kn = inputs - k < 4 ? inputs - k : 4;
-    V16 acc[4][kV];
-    for (int j = 0; j < kn; ++j) {
-      for (int v = 0; v < kV; ++v)
-        acc[j][v] = load(dW + static_cast<size_t>(k + j) * kHidden + 16 * v);
-    }
-    for (int s = 0; s < count; ++s) {
-      V16 d[kV];
-      for (int v = 0; v < kV; ++v) d[v] = load(dh + static_cast<size_t>(s) * kHidden + 16 * v);
-      const float* xs = x + static_cast<size_t>(s) * inputs + k;
-      for (int j = 0; j < kn; ++j) {
-        const V16 xj = splat(xs[j]);
-        for (int v = 0; v < kV; ++v) acc[j][v] += d[v] * xj;
+  constexpr int kR = tileRows<kHidden>(), kV = kR / kWidth, kC = kTileSamples, kChunk = 64;
+  for (int s0 = 0; s0 < count; s0 += kChunk) {
+    const int s1 = count - s0 < kChunk ? count : s0 + kChunk;
+    for (int k = 0; k < inputs; k += kC) {
+      for (int r = 0; r < kHidden; r += kR) {
+        Vec acc[kC][kV];
+        for (int j = 0; j < kC; ++j) {
+          for (int v = 0; v < kV; ++v)
+            acc[j][v] = load(dW + static_cast<size_t>(k + j) * kHidden + r + kWidth * v);
+        }
+        for (int s = s0; s < s1; ++s) {
+          Vec d[kV];
+          for (int v = 0; v < kV; ++v) {
+            d[v] = pinned(load(dh + static_cast<size_t>(s) * kHidden + r + kWidth * v));
+          }
+          const float* xs = x + static_cast<size_t>(s) * inputs + k;
+          for (int j = 0; j < kC; ++j) {
+            const Vec xj = splat(xs[j]);
+            for (int v = 0; v < kV; ++v) acc[j][v] += d[v] * xj;
+          }
+        }
+        for (int j = 0; j < kC; ++j) {
+          for (int v = 0; v < kV; ++v)
+            store(dW + static_cast<size_t>(k + j) * kHidden + r + kWidth * v, acc[j][v]);
+        }
       }
-    }
-    for (int j = 0; j < kn; ++j) {
-      for (int v = 0; v < kV; ++v)
-        store(dW + static_cast<size_t>(k + j) * kHidden + 16 * v, acc[j][v]);
     }
   }
 }
@@ -113,53 +154,69 @@ void inputGradient(const float* Wt, int hidden, const float* dh, int count, floa
   product<kIn, false>(Wt, nullptr, hidden, dh, count, dx);
 }
 
+// The rows of one tile of outputLayerBackward: its kOut weight vectors, the bias sums and the
+// gradient of a tile's rows stay in registers (kOut + 2 vectors per kWidth rows), with a few
+// registers left for the splats and the loads.
+template <int kHidden, int kOut>
+constexpr int backwardTileRows() {
+  int rows = tileRows<kHidden>();
+  while (rows > kWidth && (kOut + 2) * (rows / kWidth) > kRegisters - 4) rows /= 2;
+  return rows;
+}
+
 // Back through a linear output layer (kOut outputs) and the ReLU before it: with Wt = W^T
 // (kHidden x kOut column-major) and h the ReLU's output, dh(:, s) = [h(:, s) > 0] (Wt dy(:, s));
 // db += sum_s dh(:, s); dWt += sum_s h(:, s) dy(:, s)^T (the output layer's weight gradient,
-// transposed).
+// transposed). One pass over the samples per tile of rows.
 template <int kHidden, int kOut>
 void outputLayerBackward(const float* Wt, const float* h, const float* dy, int count, float* dh,
                          float* db, float* dWt) {
-  constexpr int kV = kHidden / 16;
-  {
-    V16 w[kOut][kV], bias[kV];
+  constexpr int kR = backwardTileRows<kHidden, kOut>(), kV = kR / kWidth;
+  static_assert(kHidden % kR == 0, "hidden units must be whole tiles");
+  for (int r = 0; r < kHidden; r += kR) {
+    Vec w[kOut][kV], bias[kV];
     for (int o = 0; o < kOut; ++o) {
       for (int v = 0; v < kV; ++v) {
-        w[o][v] = load(Wt + static_cast<size_t>(o) * kHidden + 16 * v);
-        pin(w[o][v]);
+        w[o][v] = pinned(load(Wt + static_cast<size_t>(o) * kHidden + r + kWidth * v));
       }
     }
-    for (int v = 0; v < kV; ++v) bias[v] = load(db + 16 * v);
+    for (int v = 0; v < kV; ++v) bias[v] = load(db + r + kWidth * v);
     for (int s = 0; s < count; ++s) {
       const float* ys = dy + static_cast<size_t>(s) * kOut;
-      V16 d[kV] = {};
+      Vec d[kV] = {};
       for (int o = 0; o < kOut; ++o) {
-        const V16 yo = splat(ys[o]);
+        const Vec yo = splat(ys[o]);
         for (int v = 0; v < kV; ++v) d[v] += w[o][v] * yo;
       }
       for (int v = 0; v < kV; ++v) {
-        const V16 hv = load(h + static_cast<size_t>(s) * kHidden + 16 * v);
-        const V16 masked = hv > V16{} ? d[v] : V16{};
+        const size_t at = static_cast<size_t>(s) * kHidden + r + kWidth * v;
+        const Vec hv = load(h + at);
+        const Vec masked = hv > Vec{} ? d[v] : Vec{};
         bias[v] += masked;
-        store(dh + static_cast<size_t>(s) * kHidden + 16 * v, masked);
+        store(dh + at, masked);
       }
     }
-    for (int v = 0; v < kV; ++v) store(db + 16 * v, bias[v]);
+    for (int v = 0; v < kV; ++v) store(db + r + kWidth * v, bias[v]);
   }
-  V16 acc[kOut][kV];
-  for (int o = 0; o < kOut; ++o) {
-    for (int v = 0; v < kV; ++v) acc[o][v] = load(dWt + static_cast<size_t>(o) * kHidden + 16 * v);
-  }
-  for (int s = 0; s < count; ++s) {
-    V16 hv[kV];
-    for (int v = 0; v < kV; ++v) hv[v] = load(h + static_cast<size_t>(s) * kHidden + 16 * v);
+  for (int r = 0; r < kHidden; r += kR) {
+    Vec acc[kOut][kV];
     for (int o = 0; o < kOut; ++o) {
-      const V16 yo = splat(dy[static_cast<size_t>(s) * kOut + o]);
-      for (int v = 0; v < kV; ++v) acc[o][v] += hv[v] * yo;
+      for (int v = 0; v < kV; ++v)
+        acc[o][v] = load(dWt + static_cast<size_t>(o) * kHidden + r + kWidth * v);
     }
-  }
-  for (int o = 0; o < kOut; ++o) {
-    for (int v = 0; v < kV; ++v) store(dWt + static_cast<size_t>(o) * kHidden + 16 * v, acc[o][v]);
+    for (int s = 0; s < count; ++s) {
+      Vec hv[kV];
+      for (int v = 0; v < kV; ++v)
+        hv[v] = load(h + static_cast<size_t>(s) * kHidden + r + kWidth * v);
+      for (int o = 0; o < kOut; ++o) {
+        const Vec yo = splat(dy[static_cast<size_t>(s) * kOut + o]);
+        for (int v = 0; v < kV; ++v) acc[o][v] += hv[v] * yo;
+      }
+    }
+    for (int o = 0; o < kOut; ++o) {
+      for (int v = 0; v < kV; ++v)
+        store(dWt + static_cast<size_t>(o) * kHidden + r + kWidth * v, acc[o][v]);
+    }
   }
 }
 

@@ -293,10 +293,11 @@ TEST(Fields, BandLimitWeightsTheEncodingAndItsGradients) {
 }
 
 // The float hash field runs its MLP through register-blocked kernels (32 features into 64 hidden
-// units) where the target has AVX-512; Eigen's products (the path checked above against central
-// differences, in double) are the reference: the same parameters and inputs must give the same
-// outputs and gradients up to the order of float sums. 263 samples: a full block of 256 and a tail
-// that is not a multiple of the kernels' 4 samples; fixed random inputs.
+// units) where the target has AVX-512 or AVX2 with FMA; Eigen's products (the path checked above
+// against central differences, in double) are the reference: the same parameters and inputs must
+// give the same outputs and gradients up to the order of float sums. 263 samples: a full block of
+// 256 and a tail that is not a multiple of the kernels' tiles (4 samples with AVX-512, 2 with
+// AVX2); fixed random inputs.
 TEST(Fields, HashFieldKernelsMatchEigensProducts) {
   for (const int channels : {1, 3}) {
     HashFieldConfig c;  // 8 levels x 4 features, hidden 64

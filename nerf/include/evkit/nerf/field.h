@@ -63,8 +63,8 @@ struct HashFieldConfig {
   HashGridConfig grid;
   int hidden = 64;
   // The MLP's register-blocked kernels where they apply (float, 32 features into 64 hidden units,
-  // grey or colour, an AVX-512 target); false: Eigen's products everywhere (the same maths, for
-  // comparison).
+  // grey or colour, an AVX-512 or AVX2 + FMA target); false: Eigen's products everywhere (the
+  // same maths, for comparison).
   bool kernels = true;
 };
 
