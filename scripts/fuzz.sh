@@ -68,11 +68,12 @@ with h5py.File(sys.argv[2], "w") as f:  # the plugins' filters (Debian's hdf5-fi
                      compression=32004)
 PY
 fi
-# Frames and attributes: evkit's layout with deflated frames chunked across frames and rows, and
-# event_utils' with times in seconds, polarities as h5py's bool (an enum) and timestamped images.
+# Frames and attributes: evkit's layout with deflated frames chunked across frames and rows,
+# event_utils' with times in seconds, polarities as h5py's bool (an enum) and timestamped images,
+# and DSEC's (events without frames).
 # Written to the work folder: the frames also seed the AEDAT 4.0 reader below.
 if /usr/bin/python3 -c 'import h5py' 2>/dev/null; then
-  /usr/bin/python3 - "$work/e.h5" "$work/f.h5" <<'PY' || echo "fuzz: h5py could not write the seed files of frames"
+  /usr/bin/python3 - "$work/e.h5" "$work/f.h5" "$work/g.h5" <<'PY' || echo "fuzz: h5py could not write the seed files of frames"
 import sys
 import h5py
 import numpy as np
@@ -104,8 +105,17 @@ with h5py.File(sys.argv[2], "w") as f:
         d = im.create_dataset(f"image{i:09d}", data=rng.integers(0, 255, (26, 34)).astype("u1"),
                               chunks=(13, 34), compression="gzip" if i else None)
         d.attrs["timestamp"] = 0.03 + 0.05 * i
+with h5py.File(sys.argv[3], "w") as f:  # DSEC's: times relative to a root t_offset, index at root
+    t = np.sort(rng.integers(0, 9000, n)).astype("u4")
+    g = f.create_group("events")
+    g.create_dataset("t", data=t, chunks=(64,), compression="gzip")
+    g.create_dataset("x", data=rng.integers(0, 34, n).astype("u2"), chunks=(64,), compression="gzip")
+    g.create_dataset("y", data=rng.integers(0, 26, n).astype("u2"), chunks=(64,), compression="gzip")
+    g.create_dataset("p", data=rng.integers(0, 2, n).astype("u1"), chunks=(64,), compression="gzip")
+    f.create_dataset("ms_to_idx", data=np.searchsorted(t, np.arange(0, 10000, 1000)).astype("u8"))
+    f.create_dataset("t_offset", data=np.int64(1_600_000_000_000_000))
 PY
-  [ -d "$seeds/hdf5" ] && cp "$work/e.h5" "$work/f.h5" "$seeds/hdf5/" 2>/dev/null
+  [ -d "$seeds/hdf5" ] && cp "$work/e.h5" "$work/f.h5" "$work/g.h5" "$seeds/hdf5/" 2>/dev/null
 fi
 [ -d "$seeds/aedat4" ] && ASAN_OPTIONS=detect_leaks=0 "$evkit" convert "$work/demo/random.txt" "$seeds/aedat4/a.aedat4" 2>/dev/null
 [ -d "$seeds/aedat4" ] && ASAN_OPTIONS=detect_leaks=0 "$evkit" convert "$work/demo/random.txt" "$seeds/aedat4/z.aedat4" --compression zstd 2>/dev/null
