@@ -9,7 +9,9 @@
 //   4 weight vectors of a step pinned beside them.
 // EVKIT_SMALL_LAYER is 1 where one of them is the target and 0 otherwise (Eigen's products are
 // then used). Every output element is one sum over the inner index in increasing order, whatever
-// the tiles: the results depend only on the inputs, not on the target's tiling.
+// the tiles: the results depend only on the inputs, not on the target's tiling. Each tiling has
+// its own inline namespace, so that a unit built for another target (the tests build the AVX2
+// tiling beside the AVX-512 one) does not share its symbols.
 #pragma once
 
 #if defined(__GNUC__) && (defined(__AVX512F__) || (defined(__AVX2__) && defined(__FMA__)))
@@ -18,7 +20,14 @@
 #include <cstddef>
 #include <cstring>
 
+#if defined(__AVX512F__)
+#define EVKIT_SMALL_LAYER_TILING avx512
+#else
+#define EVKIT_SMALL_LAYER_TILING avx2
+#endif
+
 namespace evkit::nerf::small_layer {
+inline namespace EVKIT_SMALL_LAYER_TILING {
 
 #if defined(__AVX512F__)
 constexpr int kWidth = 16;      // floats per register
@@ -220,6 +229,7 @@ void outputLayerBackward(const float* Wt, const float* h, const float* dy, int c
   }
 }
 
+}  // namespace EVKIT_SMALL_LAYER_TILING
 }  // namespace evkit::nerf::small_layer
 
 #else
