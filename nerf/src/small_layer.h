@@ -138,7 +138,8 @@ void forwardRelu(const float* W, const float* b, int inputs, const float* x, int
 // Weight gradient: dW += dh x^T (dW hidden x inputs column-major, dh hidden x count, x inputs x
 // count), in tiles of kTileSamples input columns x the tile's rows, over chunks of 64 samples
 // (their dh and x stay in L1 while every tile passes over them; the sums run over the samples in
-// order).
+// order). inputs must be a multiple of kTileSamples: the tiles have no tail (the layer's 32
+// features are whole tiles).
 template <int kHidden>
 void weightGradient(const float* dh, const float* x, int inputs, int count, float* dW) {
   constexpr int kR = tileRows<kHidden>(), kV = kR / kWidth, kC = kTileSamples, kChunk = 64;
@@ -198,7 +199,9 @@ constexpr int backwardTileRows() {
 // Back through a linear output layer (kOut outputs) and the ReLU before it: with Wt = W^T
 // (kHidden x kOut column-major) and h the ReLU's output, dh(:, s) = [h(:, s) > 0] (Wt dy(:, s));
 // db += sum_s dh(:, s); dWt += sum_s h(:, s) dy(:, s)^T (the output layer's weight gradient,
-// transposed). One pass over the samples per tile of rows.
+// transposed). One pass over the samples per tile of rows. The dWt pass is weightGradient's
+// product with (h, dy), written again because weightGradient tiles its columns by kTileSamples,
+// which kOut = 2 outputs do not fill where that is 4 (AVX-512).
 template <int kHidden, int kOut>
 void outputLayerBackward(const float* Wt, const float* h, const float* dy, int count, float* dh,
                          float* db, float* dWt) {
