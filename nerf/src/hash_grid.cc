@@ -154,10 +154,11 @@ void encodeLevelBackward(const T* const* p, Eigen::Index n, int res, bool dense,
       }
     }
     // d/df of the trilinear sum: differences of the dots along each axis, weighted by the other
-    // two (vectorised over samples).
-    T* dx = dp + begin;
-    T* dy = dp + n + begin;
-    T* dz = dp + 2 * n + begin;
+    // two, then added into dp where the sample is inside along that axis. Two loops, each
+    // vectorised over samples: with the multiplication under the condition (as one loop, GCC moves
+    // it there), GCC does not convert the branch, as a multiplication might trap, and the loop
+    // stayed scalar.
+    T ddf[3][kChunk];
     const uint8_t* in = inside + begin;
     for (int k = 0; k < count; ++k) {
       const T gx = chunk.f[0][k], hx = T(1) - gx, gy = chunk.f[1][k], hy = T(1) - gy,
@@ -170,9 +171,14 @@ void encodeLevelBackward(const T* const* p, Eigen::Index n, int res, bool dense,
           hx * hz * (d2 - d0) + gx * hz * (d3 - d1) + hx * gz * (d6 - d4) + gx * gz * (d7 - d5);
       const T ddz =
           hx * hy * (d4 - d0) + gx * hy * (d5 - d1) + hx * gy * (d6 - d2) + gx * gy * (d7 - d3);
-      dx[k] += (in[k] & 1) ? ddx * scale : T(0);
-      dy[k] += (in[k] & 2) ? ddy * scale : T(0);
-      dz[k] += (in[k] & 4) ? ddz * scale : T(0);
+      ddf[0][k] = ddx * scale;
+      ddf[1][k] = ddy * scale;
+      ddf[2][k] = ddz * scale;
+    }
+    for (int a = 0; a < 3; ++a) {
+      T* d = dp + a * n + begin;
+      const uint8_t bit = static_cast<uint8_t>(1 << a);
+      for (int k = 0; k < count; ++k) d[k] += (in[k] & bit) ? ddf[a][k] : T(0);
     }
   }
 }

@@ -138,18 +138,27 @@ TEST_P(HashGridFeatures, BackwardToTableAndPositionsAgainstCentralDifferences) {
   HashGrid<double> grid(c, 3);
   for (double& v : grid.table())
     v *= 1e4;  // O(1) features, so that position gradients are not tiny
-  MatrixD x = (MatrixD::Random(3, 6).array() * 0.45 + 0.5).matrix();
-  const MatrixD w = MatrixD::Random(grid.outputSize(), 6);
+  MatrixD x = (MatrixD::Random(3, 8).array() * 0.45 + 0.5).matrix();
+  // Two samples outside the unit cube along some axes (clamped there: no gradient along those
+  // axes, and the others' as inside).
+  x.col(6) << 1.3, 0.4, 0.6;
+  x.col(7) << 0.3, -0.2, 1.1;
+  const MatrixD w = MatrixD::Random(grid.outputSize(), 8);
   grid.zeroGradients();
   grid.forward(x);
   const MatrixD dx = grid.backward(w);
   const auto of_positions = [&](const Eigen::VectorXd& v) -> Eigen::VectorXd {
     HashGrid<double> g = grid;
     return Eigen::VectorXd::Constant(
-        1, (w.array() * g.forward(Eigen::Map<const MatrixD>(v.data(), 3, 6)).array()).sum());
+        1, (w.array() * g.forward(Eigen::Map<const MatrixD>(v.data(), 3, 8)).array()).sum());
   };
   test::expectJacobianNear("hash grid positions", flat(dx).transpose(), of_positions, flat(x), 1e-7,
                            1e-5);
+  EXPECT_EQ(dx(0, 6), 0.0);
+  EXPECT_NE(dx(1, 6), 0.0);
+  EXPECT_EQ(dx(1, 7), 0.0);
+  EXPECT_EQ(dx(2, 7), 0.0);
+  EXPECT_NE(dx(0, 7), 0.0);
   const Eigen::VectorXd table = Eigen::Map<const Eigen::VectorXd>(
       grid.table().data(), static_cast<Eigen::Index>(grid.table().size()));
   const auto of_table = [&](const Eigen::VectorXd& v) -> Eigen::VectorXd {
