@@ -136,13 +136,13 @@ void forwardRelu(const float* W, const float* b, int inputs, const float* x, int
 }
 
 // Weight gradient: dW += dh x^T (dW hidden x inputs column-major, dh hidden x count, x inputs x
-// count), in tiles of kTileSamples input columns x the tile's rows, over chunks of 64 samples
-// (their dh and x stay in L1 while every tile passes over them; the sums run over the samples in
-// order). inputs must be a multiple of kTileSamples: the tiles have no tail (the layer's 32
-// features are whole tiles).
-template <int kHidden>
+// count), in tiles of kColumns input columns x the tile's rows, over chunks of 64 samples (their
+// dh and x stay in L1 while every tile passes over them; the sums run over the samples in order).
+// inputs must be a multiple of kColumns: the tiles have no tail (with a run-time tail GCC kept the
+// accumulators in memory; the first layer's 32 features are whole tiles).
+template <int kHidden, int kColumns = kTileSamples>
 void weightGradient(const float* dh, const float* x, int inputs, int count, float* dW) {
-  constexpr int kR = tileRows<kHidden>(), kV = kR / kWidth, kC = kTileSamples, kChunk = 64;
+  constexpr int kR = tileRows<kHidden>(), kV = kR / kWidth, kC = kColumns, kChunk = 64;
   for (int s0 = 0; s0 < count; s0 += kChunk) {
     const int s1 = count - s0 < kChunk ? count : s0 + kChunk;
     for (int k = 0; k < inputs; k += kC) {
@@ -198,10 +198,9 @@ constexpr int backwardTileRows() {
 
 // Back through a linear output layer (kOut outputs) and the ReLU before it: with Wt = W^T
 // (kHidden x kOut column-major) and h the ReLU's output, dh(:, s) = [h(:, s) > 0] (Wt dy(:, s));
-// db += sum_s dh(:, s); dWt += sum_s h(:, s) dy(:, s)^T (the output layer's weight gradient,
-// transposed). One pass over the samples per tile of rows. The dWt pass is weightGradient's
-// product with (h, dy), written again because weightGradient tiles its columns by kTileSamples,
-// which kOut = 2 outputs do not fill where that is 4 (AVX-512).
+// db += sum_s dh(:, s) (one pass over the samples per tile of rows); dWt += sum_s h(:, s)
+// dy(:, s)^T (the output layer's weight gradient, transposed: weightGradient's product with
+// (h, dy), in column tiles of at most kOut).
 template <int kHidden, int kOut>
 void outputLayerBackward(const float* Wt, const float* h, const float* dy, int count, float* dh,
                          float* db, float* dWt) {
@@ -239,33 +238,9 @@ void outputLayerBackward(const float* Wt, const float* h, const float* dy, int c
     EVKIT_UNROLL
     for (int v = 0; v < kV; ++v) store(db + r + kWidth * v, bias[v]);
   }
-  for (int r = 0; r < kHidden; r += kR) {
-    Vec acc[kOut][kV];
-    EVKIT_UNROLL
-    for (int o = 0; o < kOut; ++o) {
-      EVKIT_UNROLL
-      for (int v = 0; v < kV; ++v)
-        acc[o][v] = load(dWt + static_cast<size_t>(o) * kHidden + r + kWidth * v);
-    }
-    for (int s = 0; s < count; ++s) {
-      Vec hv[kV];
-      EVKIT_UNROLL
-      for (int v = 0; v < kV; ++v)
-        hv[v] = load(h + static_cast<size_t>(s) * kHidden + r + kWidth * v);
-      EVKIT_UNROLL
-      for (int o = 0; o < kOut; ++o) {
-        const Vec yo = splat(dy[static_cast<size_t>(s) * kOut + o]);
-        EVKIT_UNROLL
-        for (int v = 0; v < kV; ++v) acc[o][v] += hv[v] * yo;
-      }
-    }
-    EVKIT_UNROLL
-    for (int o = 0; o < kOut; ++o) {
-      EVKIT_UNROLL
-      for (int v = 0; v < kV; ++v)
-        store(dWt + static_cast<size_t>(o) * kHidden + r + kWidth * v, acc[o][v]);
-    }
-  }
+  constexpr int kColumns = kOut < kTileSamples ? kOut : kTileSamples;
+  static_assert(kOut % kColumns == 0, "outputs must be whole column tiles");
+  weightGradient<kHidden, kColumns>(h, dy, kOut, count, dWt);
 }
 
 }  // namespace EVKIT_SMALL_LAYER_TILING
