@@ -115,8 +115,8 @@ void encodeLevel(const T* const* p, Eigen::Index n, int res, bool dense, uint32_
 }
 
 // Backward of one level: scatters g (k F + j) into the level's gradient slice, marks touched
-// entries, and adds d(sum g . features)/d(position) (in grid units times res) into dp (n x 3, one
-// array per axis, masked by `inside`).
+// entries, and writes d(sum g . features)/d(position) (in grid units times res) into dp (n x 3, one
+// array per axis, zero where `inside` says the sample was clamped along that axis).
 template <int F, typename T>
 void encodeLevelBackward(const T* const* p, Eigen::Index n, int res, bool dense, uint32_t mask,
                          const T* slice, int features, const T* g, T* grad, uint8_t* touched,
@@ -154,10 +154,10 @@ void encodeLevelBackward(const T* const* p, Eigen::Index n, int res, bool dense,
       }
     }
     // d/df of the trilinear sum: differences of the dots along each axis, weighted by the other
-    // two, then added into dp where the sample is inside along that axis. Two loops, each
-    // vectorised over samples: with the multiplication under the condition (as one loop, GCC moves
-    // it there), GCC does not convert the branch, as a multiplication might trap, and the loop
-    // stayed scalar.
+    // two, then written into dp where the sample is inside along that axis (0 elsewhere). Two
+    // loops, each vectorised over samples: with the multiplication under the condition (as one
+    // loop, GCC moves it there), GCC does not convert the branch, as a multiplication might trap,
+    // and the loop stayed scalar.
     T ddf[3][kChunk];
     const uint8_t* in = inside + begin;
     for (int k = 0; k < count; ++k) {
@@ -178,7 +178,7 @@ void encodeLevelBackward(const T* const* p, Eigen::Index n, int res, bool dense,
     for (int a = 0; a < 3; ++a) {
       T* d = dp + a * n + begin;
       const uint8_t bit = static_cast<uint8_t>(1 << a);
-      for (int k = 0; k < count; ++k) d[k] += (in[k] & bit) ? ddf[a][k] : T(0);
+      for (int k = 0; k < count; ++k) d[k] = (in[k] & bit) ? ddf[a][k] : T(0);
     }
   }
 }
@@ -250,8 +250,7 @@ typename HashGrid<T>::Matrix HashGrid<T>::backwardLevelMajor(const T* d_features
     for (int finest = 0; finest < config_.levels; ++finest) {
       const int l = config_.levels - 1 - finest;
       Matrix& local = partial[static_cast<size_t>(l)];
-      local.resize(n, 3);  // one array per axis; keeps its allocation for the same n
-      local.setZero();
+      local.resize(n, 3);  // one array per axis, every element written; keeps its allocation
       const int res = resolution_[static_cast<size_t>(l)];
       const bool dense = dense_[static_cast<size_t>(l)];
       const size_t offset = static_cast<size_t>(l) * entries_;
@@ -279,13 +278,23 @@ typename HashGrid<T>::Matrix HashGrid<T>::backwardLevelMajor(const T* d_features
           break;
       }
     }
-    // The levels' sums in level order, threads over samples.
+    // The levels' sums in level order, threads over runs of samples, each axis's sums over a run
+    // vectorised (summed sample by sample over the levels' arrays, the loop was scalar).
+    constexpr Eigen::Index kRun = 512;
 #pragma omp for schedule(static)
-    for (Eigen::Index k = 0; k < n; ++k) {
+    for (Eigen::Index begin = 0; begin < n; begin += kRun) {
+      const Eigen::Index count = std::min(kRun, n - begin);
+      T sum[3][kRun];
       for (int a = 0; a < 3; ++a) {
-        T sum = 0;
-        for (const Matrix& local : partial) sum += local(k, a);
-        d_positions(a, k) = sum;
+        T* s = sum[a];
+        std::fill(s, s + count, T(0));
+        for (const Matrix& local : partial) {
+          const T* level = local.col(a).data() + begin;
+          for (Eigen::Index k = 0; k < count; ++k) s[k] += level[k];
+        }
+      }
+      for (Eigen::Index k = 0; k < count; ++k) {
+        for (int a = 0; a < 3; ++a) d_positions(a, begin + k) = sum[a][k];
       }
     }
   }
