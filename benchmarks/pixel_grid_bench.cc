@@ -1,9 +1,10 @@
-// The pixel grid's loss and gradient (PixelGridProblem::evaluate), the cost of each L-BFGS step of
-// BeNeRF's default field, ten steps, and three steps of the motion's refinement, at 346x260 in
-// colour with `fast`'s 32 views, two cells per pixel, the events against the sensor's reference
-// level, the short windows and the robust penalty: a camera that turns 2 degrees and slides over
-// the exposure, 300k events, over two depths (the layer behind where the near half uncovers the
-// far one; each benchmark's last argument 0: without, PixelGridOptions::occlusion off).
+// The pixel grid's construction, its loss and gradient (PixelGridProblem::evaluate), the cost of
+// each L-BFGS step of BeNeRF's default field, ten steps, and three steps of the motion's
+// refinement, at 346x260 in colour with `fast`'s 32 views, two cells per pixel, the events against
+// the sensor's reference level, the short windows and the robust penalty: a camera that turns 2
+// degrees and slides over the exposure, 300k events, over two depths (the layer behind where the
+// near half uncovers the far one; each benchmark's last argument 0: without,
+// PixelGridOptions::occlusion off).
 //
 //   ./build/benchmarks/evkit_pixel_grid_bench
 
@@ -41,7 +42,15 @@ cv::Mat randomImage() {
   return image;
 }
 
-PixelGridProblem makeProblem(bool occlusion) {
+// What a problem is built from: the observation, the camera, the motion and the depths.
+struct Inputs {
+  Observation obs;
+  PinholeCamera camera;
+  Trajectory motion;
+  cv::Mat inverse_depth;
+};
+
+Inputs makeInputs() {
   RandomEventOptions e;
   e.count = 300'000;
   e.rate_hz = 3e6;  // 300k events in 100 ms
@@ -64,15 +73,34 @@ PixelGridProblem makeProblem(bool occlusion) {
     for (int x = 0; x < kWidth; ++x)
       inverse_depth.at<float>(y, x) = x < kWidth / 2 ? 0.3f : 0.8f;  // two depths
   }
+  return {std::move(obs), camera, fitTrajectory(TrajectoryKind::kCubicSE3, 4, t0, t1, poses),
+          inverse_depth};
+}
+
+const Inputs& inputs() {
+  static const Inputs in = makeInputs();
+  return in;
+}
+
+PixelGridProblem makeProblem(bool occlusion) {
+  const Inputs& in = inputs();
   PixelGridOptions o = fastOptions();
   o.occlusion = occlusion;
-  return PixelGridProblem(obs, camera, fitTrajectory(TrajectoryKind::kCubicSE3, 4, t0, t1, poses),
-                          inverse_depth, Contrast{0.2, 0.2}, o);
+  return PixelGridProblem(in.obs, in.camera, in.motion, in.inverse_depth, Contrast{0.2, 0.2}, o);
 }
 
 const PixelGridProblem& problem(bool occlusion) {
   static const PixelGridProblem with = makeProblem(true), without = makeProblem(false);
   return occlusion ? with : without;
+}
+
+// The problem's construction: the views' stencils and each pixel's event changes at each view
+// (BeNeRF builds one for each c that its search for c tries, and one to solve). range(0): threads;
+// range(1): the layer behind.
+void BM_PixelGridBuild(benchmark::State& state) {
+  omp_set_num_threads(static_cast<int>(state.range(0)));
+  inputs();
+  for (auto _ : state) benchmark::DoNotOptimize(makeProblem(state.range(1) != 0));
 }
 
 // range(0): threads; range(1): 1 with the gradient, 0 the loss alone (the line search's trials
@@ -112,6 +140,11 @@ void BM_PixelGridRefineMotion3(benchmark::State& state) {
   }
 }
 
+BENCHMARK(BM_PixelGridBuild)
+    ->Args({2, 1})
+    ->Args({2, 0})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 BENCHMARK(BM_PixelGridEvaluate)
     ->Args({1, 1, 1})
     ->Args({2, 1, 1})
