@@ -99,7 +99,7 @@ const PixelGridProblem& problem(bool occlusion) {
 // range(1): the layer behind.
 void BM_PixelGridBuild(benchmark::State& state) {
   omp_set_num_threads(static_cast<int>(state.range(0)));
-  inputs();
+  inputs();  // the events and the motion made before the timed loop
   for (auto _ : state) benchmark::DoNotOptimize(makeProblem(state.range(1) != 0));
 }
 
