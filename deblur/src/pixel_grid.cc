@@ -12,6 +12,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <stdexcept>
 
 #include "benerf_common.h"
 #include "evkit/base/error.h"
@@ -305,6 +306,14 @@ double PixelGridProblem::blurResidual(double mean, float frame, bool* flat) cons
 
 double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<double>* gradient,
                                   Terms* terms) const {
+  return evaluateEvery(u, gradient, terms, 1);
+}
+
+double PixelGridProblem::evaluateEvery(const std::vector<double>& u,
+                                       std::vector<double>* gradient, Terms* terms,
+                                       int stride) const {
+  if (stride != 1 && gradient)
+    throw std::invalid_argument("PixelGridProblem::evaluateEvery: a gradient needs every pixel");
   // The unknowns are the cells' log intensities (the event model's mapping); the views sample the
   // cells' intensities bilinearly (linear light).
   std::vector<double> slope;
@@ -352,7 +361,8 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
         g_behind = partial_behind[bi].data();
       }
       for (int y = blockBegin(block); y < blockBegin(block + 1); ++y) {
-        for (int px = 0; px < W; ++px) {
+        if (y % stride != 0) continue;
+        for (int px = 0; px < W; px += stride) {
           const size_t pixel = static_cast<size_t>(y) * W + px;
           const int S = options_.subdivision;
           const size_t mid =
@@ -980,17 +990,22 @@ void PixelGridProblem::setMotion(const Trajectory& motion) {
 constexpr double kRetryDamping = 0.1;
 
 double PixelGridProblem::refineMotion(const std::vector<double>& u, int iterations) {
-  // Levenberg-Marquardt on the knots with the image fixed, on every other row and column. Called
-  // before the image is solved for (EDI's frame, which has not yet taken up the motion's errors
-  // into its texture) and again after (BenerfOptions::motion_rounds).
+  // Levenberg-Marquardt on the knots with the image fixed, on every other row and column: the
+  // normal equations there, and each trial motion's stencils and loss there too (the whole frame's
+  // took 0.22 + 0.14 s a trial on nat_cat_bricks_blur30 at 32 views, two thirds of the
+  // refinement; BENCHMARKS.md, "The motion's trials on every other pixel"). Called before the
+  // image is solved for (EDI's frame, which has not yet taken up the motion's errors into its
+  // texture) and again after (BenerfOptions::motion_rounds).
+  constexpr int kStride = 2;
   const std::vector<double> x = intensities(u);
   const Eigen::Index dim = 6 * static_cast<Eigen::Index>(motion_.knots().size());
-  double loss = evaluate(u, nullptr);
+  double loss = evaluateEvery(u, nullptr, nullptr, kStride);
   double damping = 1e-3;
+  bool tried = false;
   for (int iteration = 0; iteration < iterations; ++iteration) {
     Eigen::MatrixXd hessian;
     Eigen::VectorXd gradient;
-    normalEquations(x, 2, hessian, gradient);
+    normalEquations(x, kStride, hessian, gradient);
     bool improved = false;
     for (int attempt = 0; attempt < 6 && !improved; ++attempt) {
       Eigen::MatrixXd A = hessian;
@@ -1003,8 +1018,9 @@ double PixelGridProblem::refineMotion(const std::vector<double>& u, int iteratio
       // identity there (a constant transform of every knot moves the whole spline with it).
       const SE3 anchor = motion_.poseAt(mid_us_).inverse();
       for (SE3& knot : motion_.knots()) knot = anchor * knot;
-      buildTaps();
-      const double trial = evaluate(u, nullptr);
+      buildTaps(false, kStride);
+      tried = true;
+      const double trial = evaluateEvery(u, nullptr, nullptr, kStride);
       if (trial < loss) {
         loss = trial;
         damping = std::max(1e-6, damping * 0.3);
@@ -1014,11 +1030,9 @@ double PixelGridProblem::refineMotion(const std::vector<double>& u, int iteratio
         damping = std::max(10 * damping, kRetryDamping);
       }
     }
-    if (!improved) {
-      buildTaps();
-      break;
-    }
+    if (!improved) break;
   }
+  if (tried) buildTaps();  // every pixel's, from the motion kept
   return loss;
 }
 

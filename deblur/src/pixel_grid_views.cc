@@ -196,18 +196,18 @@ void PixelGridProblem::findSurfaces() {
   }
 }
 
-void PixelGridProblem::buildTaps(bool allocating) {
+void PixelGridProblem::buildTaps(bool allocating, int stride) {
   const int W = camera_.width, H = camera_.height;
   const size_t N = directions_.size();
   taps_.resize(static_cast<size_t>(views_) * N);
-  across_.assign(taps_.size(), 0);
+  across_.resize(taps_.size());
   across_pixels_.assign(N, 0);
   for (int k = 0; k < views_; ++k) {
     const SE3 pose = motion_.poseAt(times_us_[static_cast<size_t>(k)]);
     const Matrix3 R = pose.rotationMatrix();
 #pragma omp parallel for schedule(static)
-    for (int y = 0; y < H; ++y) {
-      for (int x = 0; x < W; ++x) {
+    for (int y = 0; y < H; y += stride) {
+      for (int x = 0; x < W; x += stride) {
         const size_t pixel = static_cast<size_t>(y) * W + x, slot = viewSlot(k, pixel);
         if (!occluding_) {  // the lookups alone, without viewSample's call
           const ViewSample s = lookups(x, y, R * directions_[pixel], pose.translation());
@@ -226,7 +226,7 @@ void PixelGridProblem::buildTaps(bool allocating) {
   for (size_t pixel = 0; pixel < N; ++pixel) {
     for (int k = 0; k < views_; ++k) across_pixels_[pixel] |= across_[viewSlot(k, pixel)];
   }
-  if (!allocating) findBlockRows();  // else once the layer's cells are chosen
+  if (!allocating && stride == 1) findBlockRows();  // else once the layer's cells are chosen
 }
 
 void PixelGridProblem::findBlockRows() {

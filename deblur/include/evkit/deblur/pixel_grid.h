@@ -126,8 +126,9 @@ class PixelGridProblem {
       std::vector<double>& x, int iterations, Terms* terms = nullptr,
       std::chrono::steady_clock::time_point deadline = std::chrono::steady_clock::time_point::max(),
       const std::function<void(int, double)>& progress = {}, double converged = 0) const;
-  // Levenberg-Marquardt steps on the motion with the image u fixed (the event term's residuals;
-  // a step is taken when the whole loss falls); returns the loss.
+  // Levenberg-Marquardt steps on the motion with the image u fixed, on every other row and column
+  // (the normal equations and each trial motion's loss there; a step is taken when that loss
+  // falls); returns that loss.
   double refineMotion(const std::vector<double>& u, int iterations);
   // The loss's gradient with respect to the knots' right perturbations (6 per knot), with the
   // image u fixed, from every `stride`-th row and column.
@@ -197,7 +198,9 @@ class PixelGridProblem {
   // nearest_, farthest_ and most_move_ from the inverse depth and the views' poses.
   void findSurfaces();
   // Every view's stencils from the motion, and block_rows_ (not while `allocating`, viewSample's).
-  void buildTaps(bool allocating = false);
+  // With a `stride` over 1, only those of every stride-th row and column, and no block_rows_: the
+  // stencils of the loss on those pixels alone (evaluateEvery).
+  void buildTaps(bool allocating = false, int stride = 1);
   void findBlockRows();  // block_rows_ from the stencils
   // The frame's rows in kRowBlocks blocks whatever the thread count: each block's sums and its
   // share of the gradient (over the canvas rows its views reach, block_rows_) are its own, and the
@@ -210,6 +213,11 @@ class PixelGridProblem {
     return std::clamp(static_cast<int>(std::lround(options_.event_window * views_)), 1,
                       std::max(1, views_ - 1));
   }
+  // evaluate on every `stride`-th row and column (the blur and event terms of those pixels, the
+  // smoothness whole). With a stride over 1 no gradient: the stencils of the other pixels may be
+  // stale (buildTaps' stride).
+  double evaluateEvery(const std::vector<double>& u, std::vector<double>* gradient, Terms* terms,
+                       int stride) const;
   // The Gauss-Newton normal equations of the loss in the knots' right perturbations, from
   // intensities x (the weighted sum's half gradient and its approximate Hessian).
   void normalEquations(const std::vector<double>& x, int stride, Eigen::MatrixXd& hessian,
