@@ -309,9 +309,8 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
   return evaluateEvery(u, gradient, terms, 1);
 }
 
-double PixelGridProblem::evaluateEvery(const std::vector<double>& u,
-                                       std::vector<double>* gradient, Terms* terms,
-                                       int stride) const {
+double PixelGridProblem::evaluateEvery(const std::vector<double>& u, std::vector<double>* gradient,
+                                       Terms* terms, int stride) const {
   if (stride != 1 && gradient)
     throw std::invalid_argument("PixelGridProblem::evaluateEvery: a gradient needs every pixel");
   // The unknowns are the cells' log intensities (the event model's mapping); the views sample the
