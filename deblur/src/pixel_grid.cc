@@ -306,158 +306,16 @@ double PixelGridProblem::blurResidual(double mean, float frame, bool* flat) cons
 
 double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<double>* gradient,
                                   Terms* terms) const {
-  return evaluateEvery(u, gradient, terms, 1);
-}
-
-double PixelGridProblem::evaluateEvery(const std::vector<double>& u, std::vector<double>* gradient,
-                                       Terms* terms, int stride) const {
-  if (stride != 1 && gradient)
-    throw std::invalid_argument("PixelGridProblem::evaluateEvery: a gradient needs every pixel");
   // The unknowns are the cells' log intensities (the event model's mapping); the views sample the
   // cells' intensities bilinearly (linear light).
   std::vector<double> slope;
   const std::vector<double> x = intensities(u, &slope);
-  const int W = camera_.width, C = channels_, V = views_;
-  const size_t N = directions_.size();
-  const int lag = eventLag();
-  const double blur_scale = blur_weight_ / (static_cast<double>(N) * C),
-               event_scale = options_.beta / (static_cast<double>(N) * V),
-               window_scale = lag > 0 ? options_.beta / (static_cast<double>(N) * (V - lag)) : 0;
-  const LogMapping& log = options_.log;
+  const int C = channels_;
   if (gradient) gradient->resize(x.size());
-  // Each row block's sums and gradient on its own (block_rows_), added in block order.
+  BlockGradients blocks;
+  const DataTerms data = dataTerms(x, 1, gradient ? &blocks : nullptr);
+  const std::vector<std::vector<double>>&partial = blocks.front, &partial_behind = blocks.behind;
   const auto row = static_cast<size_t>(canvas_w_) * C;
-  std::vector<std::vector<double>> partial(gradient ? kRowBlocks : 0),
-      partial_behind(gradient && layered() ? kRowBlocks : 0);
-  std::array<double, kRowBlocks> blur_sums{}, event_sums{};
-#pragma omp parallel
-  {
-    std::vector<double> colour(static_cast<size_t>(V) * C), d_grey(static_cast<size_t>(V)),
-        logs(static_cast<size_t>(V)), greys(static_cast<size_t>(V)),
-        reference(static_cast<size_t>(V) + 1), d_reference(static_cast<size_t>(V) + 1),
-        d_level(static_cast<size_t>(V) + 1);
-    const int M = referencePlays();
-    std::vector<int> source(static_cast<size_t>(V + 1) * M);
-#pragma omp for schedule(dynamic)
-    for (int block = 0; block < kRowBlocks; ++block) {
-      const auto bi = static_cast<size_t>(block);
-      double blur_sum = 0, event_sum = 0;
-      // The block's gradient over the canvas rows it reaches: a stencil's index less the cells of
-      // the rows before the first.
-      double* g = nullptr;
-      const int skipped = block_rows_[bi][0] * canvas_w_;
-      if (gradient) {
-        partial[bi].assign(static_cast<size_t>(block_rows_[bi][1] - block_rows_[bi][0]) * row, 0.0);
-        g = partial[bi].data();
-      }
-      // Likewise over the layer behind's cells it reaches, from the first.
-      double* g_behind = nullptr;
-      const size_t behind_skipped = static_cast<size_t>(canvas_w_) * canvas_h_ +
-                                    (layered() ? static_cast<size_t>(block_behind_[bi][0]) : 0);
-      if (!partial_behind.empty()) {
-        partial_behind[bi].assign(
-            static_cast<size_t>(block_behind_[bi][1] - block_behind_[bi][0]) * C, 0.0);
-        g_behind = partial_behind[bi].data();
-      }
-      for (int y = blockBegin(block); y < blockBegin(block + 1); ++y) {
-        if (y % stride != 0) continue;
-        for (int px = 0; px < W; px += stride) {
-          const size_t pixel = static_cast<size_t>(y) * W + px;
-          const int S = options_.subdivision;
-          const size_t mid =
-              (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
-          const double mid_grey = std::max(0.0, nerf::greyOf(&x[mid], C));
-          const double mid_log = log.logOf(mid_grey);
-          double sum[3] = {0, 0, 0};
-          // The views' samples first, then their levels (the loads of one pass, the logs of the
-          // other).
-          for (int k = 0; k < V; ++k) {
-            double* out = &colour[static_cast<size_t>(k) * C];
-            const Taps& t = taps_[viewSlot(k, pixel)];
-            if (behind(t))
-              sampleBehind(x.data(), t, out);
-            else
-              sample(x.data(), canvas_w_, C, t, out);
-          }
-          for (int k = 0; k < V; ++k) {
-            const auto ki = static_cast<size_t>(k);
-            const double* out = &colour[ki * C];
-            for (int c = 0; c < C; ++c) sum[c] += out[c];
-            greys[ki] = std::max(0.0, nerf::greyOf(out, C));
-            logs[ki] = log.logOf(greys[ki]);
-          }
-          // Each view against mid-exposure (robust), and each view `lag` views on against it
-          // (squares): the change of the sensor's reference level against the events in between
-          // (the change since mid telescopes). Each reference is the mean of its plays' levels of
-          // their source samples (index V: mid), which take its gradient.
-          const bool held = !held_out_.empty() && held_out_[pixel];
-          referenceLevels(logs.data(), mid_log, reference.data(), source.data());
-          std::fill(d_reference.begin(), d_reference.end(), 0.0);
-          const bool across = across_pixels_[pixel] != 0;
-          for (int k = 0; k < V && !held; ++k) {
-            const auto a = static_cast<size_t>(k);
-            if (across && across_[viewSlot(k, pixel)]) continue;
-            const double r =
-                reference[a] - reference[static_cast<size_t>(V)] - change_[viewSlot(k, pixel)];
-            double weight;
-            event_sum += event_scale * eventPenalty(r, &weight);
-            const double d = 2 * event_scale * weight * r;
-            d_reference[a] += d;
-            d_reference[static_cast<size_t>(V)] -= d;
-            if (lag == 0 || k + lag >= V) continue;
-            const auto b = static_cast<size_t>(k + lag);
-            if (across && across_[viewSlot(k + lag, pixel)]) continue;
-            const double rw = reference[b] - change_[viewSlot(k + lag, pixel)] -
-                              (reference[a] - change_[viewSlot(k, pixel)]);
-            event_sum += window_scale * rw * rw;
-            const double dw = 2 * window_scale * rw;
-            d_reference[b] += dw;
-            d_reference[a] -= dw;
-          }
-          referenceGradient(d_reference.data(), source.data(), d_level.data());
-          const double d_mid_log = d_level[static_cast<size_t>(V)];
-          for (int k = 0; k < V; ++k) {
-            const auto a = static_cast<size_t>(k);
-            d_grey[a] = d_level[a] * log.logSlope(greys[a]);
-          }
-          double d_sum[3] = {0, 0, 0};
-          for (int c = 0; c < C; ++c) {
-            const double r = blurResidual(sum[c] / V, blurry_.ptr<float>(y)[px * C + c]);
-            blur_sum += r * r;
-            d_sum[c] = 2 * blur_scale * r / V;
-          }
-          if (!g) continue;
-          double d_colour[3];
-          for (int k = 0; k < V; ++k) {
-            nerf::greyBackward(d_grey[static_cast<size_t>(k)], C, d_colour);
-            for (int c = 0; c < C; ++c) d_colour[c] += d_sum[c];
-            Taps t = taps_[viewSlot(k, pixel)];
-            if (!behind(t)) {
-              t.index -= skipped;
-              sampleBackward(g, canvas_w_, C, t, d_colour);
-              continue;
-            }
-            const std::array<size_t, 4> at = corners(t);
-            const double w[4] = {(1 - t.ay) * (1 - t.ax), (1 - t.ay) * t.ax, t.ay * (1 - t.ax),
-                                 t.ay * t.ax};
-            for (int n = 0; n < 4; ++n) {
-              double* cell = g_behind + (at[static_cast<size_t>(n)] - behind_skipped) * C;
-              for (int c = 0; c < C; ++c) cell[c] += w[n] * d_colour[c];
-            }
-          }
-          nerf::greyBackward(d_mid_log * log.logSlope(mid_grey), C, d_colour);
-          for (int c = 0; c < C; ++c) g[mid - static_cast<size_t>(skipped) * C + c] += d_colour[c];
-        }
-      }
-      blur_sums[bi] = blur_sum;
-      event_sums[bi] = event_sum;
-    }
-  }
-  double blur_sum = 0, event_sum = 0;
-  for (int block = 0; block < kRowBlocks; ++block) {
-    blur_sum += blur_sums[static_cast<size_t>(block)];
-    event_sum += event_sums[static_cast<size_t>(block)];
-  }
   // The blocks' gradients added, through the log mapping to the unknowns, and the smoothness of
   // the log image between neighbouring cells (sub-pixel detail only where the data asks for it),
   // each cell's share of the squared differences to its right and lower neighbours and its
@@ -561,9 +419,160 @@ double PixelGridProblem::evaluateEvery(const std::vector<double>& u, std::vector
       for (size_t j = 0; j < B * C; ++j) g[j] = g[j] * slope[first + j] + d_behind[j];
     }
   }
-  const double blur = blur_sum * blur_scale, event = event_sum + smooth + smooth_behind;
+  const double blur = data.blur, event = data.event + smooth + smooth_behind;
   if (terms) *terms = {blur / blur_weight_, event / options_.beta};
   return blur + event;
+}
+
+PixelGridProblem::DataTerms PixelGridProblem::dataTerms(const std::vector<double>& x, int stride,
+                                                        BlockGradients* blocks) const {
+  if (stride != 1 && blocks)
+    throw std::invalid_argument("PixelGridProblem::dataTerms: a gradient needs every pixel");
+  const int W = camera_.width, C = channels_, V = views_;
+
+  const size_t N = directions_.size();
+  const int lag = eventLag();
+  const double blur_scale = blur_weight_ / (static_cast<double>(N) * C),
+               event_scale = options_.beta / (static_cast<double>(N) * V),
+               window_scale = lag > 0 ? options_.beta / (static_cast<double>(N) * (V - lag)) : 0;
+  const LogMapping& log = options_.log;
+  // Each row block's sums and gradient on its own (block_rows_), added in block order.
+  const auto row = static_cast<size_t>(canvas_w_) * C;
+  if (blocks) {
+    blocks->front.assign(kRowBlocks, {});
+    blocks->behind.assign(layered() ? kRowBlocks : 0, {});
+  }
+  std::array<double, kRowBlocks> blur_sums{}, event_sums{};
+#pragma omp parallel
+  {
+    std::vector<double> colour(static_cast<size_t>(V) * C), d_grey(static_cast<size_t>(V)),
+        logs(static_cast<size_t>(V)), greys(static_cast<size_t>(V)),
+        reference(static_cast<size_t>(V) + 1), d_reference(static_cast<size_t>(V) + 1),
+        d_level(static_cast<size_t>(V) + 1);
+    const int M = referencePlays();
+    std::vector<int> source(static_cast<size_t>(V + 1) * M);
+#pragma omp for schedule(dynamic)
+    for (int block = 0; block < kRowBlocks; ++block) {
+      const auto bi = static_cast<size_t>(block);
+      double blur_sum = 0, event_sum = 0;
+      // The block's gradient over the canvas rows it reaches: a stencil's index less the cells of
+      // the rows before the first.
+      double* g = nullptr;
+      const int skipped = block_rows_[bi][0] * canvas_w_;
+      if (blocks) {
+        std::vector<double>& part = blocks->front[bi];
+        part.assign(static_cast<size_t>(block_rows_[bi][1] - block_rows_[bi][0]) * row, 0.0);
+        g = part.data();
+      }
+      // Likewise over the layer behind's cells it reaches, from the first.
+      double* g_behind = nullptr;
+      const size_t behind_skipped = static_cast<size_t>(canvas_w_) * canvas_h_ +
+                                    (layered() ? static_cast<size_t>(block_behind_[bi][0]) : 0);
+      if (blocks && layered()) {
+        std::vector<double>& part = blocks->behind[bi];
+        part.assign(static_cast<size_t>(block_behind_[bi][1] - block_behind_[bi][0]) * C, 0.0);
+        g_behind = part.data();
+      }
+      for (int y = blockBegin(block); y < blockBegin(block + 1); ++y) {
+        if (y % stride != 0) continue;
+        for (int px = 0; px < W; px += stride) {
+          const size_t pixel = static_cast<size_t>(y) * W + px;
+          const int S = options_.subdivision;
+          const size_t mid =
+              (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
+          const double mid_grey = std::max(0.0, nerf::greyOf(&x[mid], C));
+          const double mid_log = log.logOf(mid_grey);
+          double sum[3] = {0, 0, 0};
+          // The views' samples first, then their levels (the loads of one pass, the logs of the
+          // other).
+          for (int k = 0; k < V; ++k) {
+            double* out = &colour[static_cast<size_t>(k) * C];
+            const Taps& t = taps_[viewSlot(k, pixel)];
+            if (behind(t))
+              sampleBehind(x.data(), t, out);
+            else
+              sample(x.data(), canvas_w_, C, t, out);
+          }
+          for (int k = 0; k < V; ++k) {
+            const auto ki = static_cast<size_t>(k);
+            const double* out = &colour[ki * C];
+            for (int c = 0; c < C; ++c) sum[c] += out[c];
+            greys[ki] = std::max(0.0, nerf::greyOf(out, C));
+            logs[ki] = log.logOf(greys[ki]);
+          }
+          // Each view against mid-exposure (robust), and each view `lag` views on against it
+          // (squares): the change of the sensor's reference level against the events in between
+          // (the change since mid telescopes). Each reference is the mean of its plays' levels of
+          // their source samples (index V: mid), which take its gradient.
+          const bool held = !held_out_.empty() && held_out_[pixel];
+          referenceLevels(logs.data(), mid_log, reference.data(), source.data());
+          std::fill(d_reference.begin(), d_reference.end(), 0.0);
+          const bool across = across_pixels_[pixel] != 0;
+          for (int k = 0; k < V && !held; ++k) {
+            const auto a = static_cast<size_t>(k);
+            if (across && across_[viewSlot(k, pixel)]) continue;
+            const double r =
+                reference[a] - reference[static_cast<size_t>(V)] - change_[viewSlot(k, pixel)];
+            double weight;
+            event_sum += event_scale * eventPenalty(r, &weight);
+            const double d = 2 * event_scale * weight * r;
+            d_reference[a] += d;
+            d_reference[static_cast<size_t>(V)] -= d;
+            if (lag == 0 || k + lag >= V) continue;
+            const auto b = static_cast<size_t>(k + lag);
+            if (across && across_[viewSlot(k + lag, pixel)]) continue;
+            const double rw = reference[b] - change_[viewSlot(k + lag, pixel)] -
+                              (reference[a] - change_[viewSlot(k, pixel)]);
+            event_sum += window_scale * rw * rw;
+            const double dw = 2 * window_scale * rw;
+            d_reference[b] += dw;
+            d_reference[a] -= dw;
+          }
+          referenceGradient(d_reference.data(), source.data(), d_level.data());
+          const double d_mid_log = d_level[static_cast<size_t>(V)];
+          for (int k = 0; k < V; ++k) {
+            const auto a = static_cast<size_t>(k);
+            d_grey[a] = d_level[a] * log.logSlope(greys[a]);
+          }
+          double d_sum[3] = {0, 0, 0};
+          for (int c = 0; c < C; ++c) {
+            const double r = blurResidual(sum[c] / V, blurry_.ptr<float>(y)[px * C + c]);
+            blur_sum += r * r;
+            d_sum[c] = 2 * blur_scale * r / V;
+          }
+          if (!g) continue;
+          double d_colour[3];
+          for (int k = 0; k < V; ++k) {
+            nerf::greyBackward(d_grey[static_cast<size_t>(k)], C, d_colour);
+            for (int c = 0; c < C; ++c) d_colour[c] += d_sum[c];
+            Taps t = taps_[viewSlot(k, pixel)];
+            if (!behind(t)) {
+              t.index -= skipped;
+              sampleBackward(g, canvas_w_, C, t, d_colour);
+              continue;
+            }
+            const std::array<size_t, 4> at = corners(t);
+            const double w[4] = {(1 - t.ay) * (1 - t.ax), (1 - t.ay) * t.ax, t.ay * (1 - t.ax),
+                                 t.ay * t.ax};
+            for (int n = 0; n < 4; ++n) {
+              double* cell = g_behind + (at[static_cast<size_t>(n)] - behind_skipped) * C;
+              for (int c = 0; c < C; ++c) cell[c] += w[n] * d_colour[c];
+            }
+          }
+          nerf::greyBackward(d_mid_log * log.logSlope(mid_grey), C, d_colour);
+          for (int c = 0; c < C; ++c) g[mid - static_cast<size_t>(skipped) * C + c] += d_colour[c];
+        }
+      }
+      blur_sums[bi] = blur_sum;
+      event_sums[bi] = event_sum;
+    }
+  }
+  double blur_sum = 0, event_sum = 0;
+  for (int block = 0; block < kRowBlocks; ++block) {
+    blur_sum += blur_sums[static_cast<size_t>(block)];
+    event_sum += event_sums[static_cast<size_t>(block)];
+  }
+  return {blur_sum * blur_scale, event_sum};
 }
 
 int PixelGridProblem::solve(std::vector<double>& x, int iterations, Terms* terms,
@@ -998,7 +1007,13 @@ double PixelGridProblem::refineMotion(const std::vector<double>& u, int iteratio
   constexpr int kStride = 2;
   const std::vector<double> x = intensities(u);
   const Eigen::Index dim = 6 * static_cast<Eigen::Index>(motion_.knots().size());
-  double loss = evaluateEvery(u, nullptr, nullptr, kStride);
+  // The loss the trials compare is the blur and event terms there: the smoothness does not move
+  // with the motion.
+  const auto dataLoss = [&] {
+    const DataTerms data = dataTerms(x, kStride, nullptr);
+    return data.blur + data.event;
+  };
+  double loss = dataLoss();
   double damping = 1e-3;
   bool tried = false;
   for (int iteration = 0; iteration < iterations; ++iteration) {
@@ -1019,7 +1034,7 @@ double PixelGridProblem::refineMotion(const std::vector<double>& u, int iteratio
       for (SE3& knot : motion_.knots()) knot = anchor * knot;
       buildTaps(false, kStride);
       tried = true;
-      const double trial = evaluateEvery(u, nullptr, nullptr, kStride);
+      const double trial = dataLoss();
       if (trial < loss) {
         loss = trial;
         damping = std::max(1e-6, damping * 0.3);

@@ -223,8 +223,11 @@ void PixelGridProblem::buildTaps(bool allocating, int stride) {
     }
   }
 #pragma omp parallel for schedule(static)
-  for (size_t pixel = 0; pixel < N; ++pixel) {
-    for (int k = 0; k < views_; ++k) across_pixels_[pixel] |= across_[viewSlot(k, pixel)];
+  for (int y = 0; y < H; y += stride) {
+    for (int x = 0; x < W; x += stride) {
+      const size_t pixel = static_cast<size_t>(y) * W + x;
+      for (int k = 0; k < views_; ++k) across_pixels_[pixel] |= across_[viewSlot(k, pixel)];
+    }
   }
   if (!allocating && stride == 1) findBlockRows();  // else once the layer's cells are chosen
 }

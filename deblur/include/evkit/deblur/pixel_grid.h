@@ -127,8 +127,8 @@ class PixelGridProblem {
       std::chrono::steady_clock::time_point deadline = std::chrono::steady_clock::time_point::max(),
       const std::function<void(int, double)>& progress = {}, double converged = 0) const;
   // Levenberg-Marquardt steps on the motion with the image u fixed, on every other row and column
-  // (the normal equations and each trial motion's loss there; a step is taken when that loss
-  // falls); returns that loss.
+  // (the normal equations and each trial motion's blur and event terms there; a step is taken when
+  // they fall); returns those terms at the motion kept.
   double refineMotion(const std::vector<double>& u, int iterations);
   // The loss's gradient with respect to the knots' right perturbations (6 per knot), with the
   // image u fixed, from every `stride`-th row and column.
@@ -199,7 +199,7 @@ class PixelGridProblem {
   void findSurfaces();
   // Every view's stencils from the motion, and block_rows_ (not while `allocating`, viewSample's).
   // With a `stride` over 1, only those of every stride-th row and column, and no block_rows_: the
-  // stencils of the loss on those pixels alone (evaluateEvery).
+  // stencils of the loss on those pixels alone (dataTerms).
   void buildTaps(bool allocating = false, int stride = 1);
   void findBlockRows();  // block_rows_ from the stencils
   // The frame's rows in kRowBlocks blocks whatever the thread count: each block's sums and its
@@ -213,11 +213,17 @@ class PixelGridProblem {
     return std::clamp(static_cast<int>(std::lround(options_.event_window * views_)), 1,
                       std::max(1, views_ - 1));
   }
-  // evaluate on every `stride`-th row and column (the blur and event terms of those pixels, the
-  // smoothness whole). With a stride over 1 no gradient: the stencils of the other pixels may be
-  // stale (buildTaps' stride).
-  double evaluateEvery(const std::vector<double>& u, std::vector<double>* gradient, Terms* terms,
-                       int stride) const;
+  // The blur and event terms of evaluate, in its units, from the cells' intensities x on every
+  // `stride`-th row and column; with `blocks`, each row block's gradient of them in x (over the
+  // canvas rows it reaches, block_rows_, and the layer behind's cells, block_behind_). With a
+  // stride over 1 no gradient: the stencils of the other pixels may be stale (buildTaps' stride).
+  struct DataTerms {
+    double blur = 0, event = 0;
+  };
+  struct BlockGradients {
+    std::vector<std::vector<double>> front, behind;
+  };
+  DataTerms dataTerms(const std::vector<double>& x, int stride, BlockGradients* blocks) const;
   // The Gauss-Newton normal equations of the loss in the knots' right perturbations, from
   // intensities x (the weighted sum's half gradient and its approximate Hessian).
   void normalEquations(const std::vector<double>& x, int stride, Eigen::MatrixXd& hessian,
