@@ -429,7 +429,6 @@ PixelGridProblem::DataTerms PixelGridProblem::dataTerms(const std::vector<double
   if (stride != 1 && blocks)
     throw std::invalid_argument("PixelGridProblem::dataTerms: a gradient needs every pixel");
   const int W = camera_.width, C = channels_, V = views_;
-
   const size_t N = directions_.size();
   const int lag = eventLag();
   const double blur_scale = blur_weight_ / (static_cast<double>(N) * C),

@@ -198,8 +198,9 @@ class PixelGridProblem {
   // nearest_, farthest_ and most_move_ from the inverse depth and the views' poses.
   void findSurfaces();
   // Every view's stencils from the motion, and block_rows_ (not while `allocating`, viewSample's).
-  // With a `stride` over 1, only those of every stride-th row and column, and no block_rows_: the
-  // stencils of the loss on those pixels alone (dataTerms).
+  // With a `stride` over 1, only those of every stride-th row and column (and across_pixels_ of
+  // those pixels alone), and no block_rows_: the stencils of the loss on those pixels alone
+  // (dataTerms).
   void buildTaps(bool allocating = false, int stride = 1);
   void findBlockRows();  // block_rows_ from the stencils
   // The frame's rows in kRowBlocks blocks whatever the thread count: each block's sums and its
