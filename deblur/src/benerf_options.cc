@@ -95,8 +95,10 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
                 "the fast hash-grid field or the paper's 8 x 256 MLP")
         .integer("iterations", &O::iterations, {1}, "training steps")
         .integer("views", &O::virtual_views, {0},
-                 "virtual views of the blur term (0: from the blur length, the pixel grid's one "
-                 "per pixel of it, up to max_views)")
+                 "virtual views of the blur term (0: from the blur length, the pixel grid's "
+                 "views_per_px per pixel of it, up to max_views)")
+        .number("views_per_px", &O::views_per_px, positive,
+                "the pixel grid's views per pixel of blur when they follow the blur length")
         .integer("max_views", &O::max_views, {8},
                  "the pixel grid's most views when they follow the blur length (fast: 32, else 64)")
         .number("converged", &O::converged, {0},

@@ -165,11 +165,11 @@ PixelGridProblem::PixelGridProblem(const Observation& obs, const PinholeCamera& 
   const int64_t t0 = obs.blurry.exposure_start_us, t1 = obs.blurry.exposure_end_us;
   mid_us_ = obs.blurry.midExposure();
 
-  // The views: as many as the longest image path over the exposure has pixels (the blur integral
-  // by the midpoint rule at about one view per pixel of motion), within the options' bounds.
+  // The views: views_per_px for each pixel of the longest image path over the exposure (the blur
+  // integral by the midpoint rule), within the options' bounds.
   blur_px_ = longestImagePath(camera_, motion_, inverse_depth_, t0, t1);
-  views_ =
-      std::clamp(static_cast<int>(std::ceil(blur_px_)) + 1, options_.min_views, options_.max_views);
+  views_ = std::clamp(static_cast<int>(std::ceil(options_.views_per_px * blur_px_)) + 1,
+                      options_.min_views, options_.max_views);
   for (int k = 0; k < views_; ++k) {
     times_us_.push_back(t0 + std::llround((k + 0.5) / views_ * static_cast<double>(t1 - t0)));
   }

@@ -137,6 +137,10 @@ SolvedContrast contrastFromSolves(
   const bool refine_motions = refineWalkMotions(blur_px);
   result.parameters["contrast_solves_refine_motion"] = refine_motions ? 1 : 0;
   po.max_views = std::max(po.min_views, kSearchViews);
+  // One view per pixel of blur, not the final solve's two: on nat_gravel_ground_blur15 two and
+  // three moved the walk's c by under 1% (0.2277 -> 0.2291 and 0.2285; BENCHMARKS.md, "Two views
+  // per pixel of blur"), at up to 1.4 times the candidates' time.
+  po.views_per_px = 1;
   // The short solves read the events as the log level, not as the sensor's reference level that
   // the final solve reads (PixelGridOptions::hysteresis): on the natural suite without thresholds
   // the walk found c as far from the truth either way (7.9% on average), and BeNeRF's frames came

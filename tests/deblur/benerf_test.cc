@@ -2032,11 +2032,11 @@ TEST(Benerf, PixelGridLeavesAStartItWouldKeepAtALongerBlurToTheHashField) {
       << "BeNeRF " << m.benerf_psnr << " dB, EDI " << m.edi_psnr << " dB";
 }
 
-// The grid's views: one per pixel of the longest image path, at most 32 at `fast` (beyond that the
-// natural suite's 60 px scenes gained nothing, BENCHMARKS.md "How many views") and 64 else
-// (`max_views`), and `views` fixes the count as it does for the fields. Planes at 120 x 90 with
-// 40 px of blur, two L-BFGS steps each.
-TEST(Benerf, PixelGridTakesOneViewPerPixelOfBlurUpToItsBoundOrTheViewsSetting) {
+// The grid's views: two per pixel of the longest image path (`views_per_px`), at most 32 at `fast`
+// (beyond that the natural suite's 60 px scenes gained nothing, BENCHMARKS.md "How many views") and
+// 64 else (`max_views`), and `views` fixes the count as it does for the fields. Planes at 120 x 90
+// with 40 px of blur, two L-BFGS steps each.
+TEST(Benerf, PixelGridTakesTwoViewsPerPixelOfBlurUpToItsBoundOrTheViewsSetting) {
   if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   const Observation obs = presetObservation("planes", 40);
   const DeblurRequest request{{obs.blurry.midExposure()}, {}};
@@ -2047,7 +2047,10 @@ TEST(Benerf, PixelGridTakesOneViewPerPixelOfBlurUpToItsBoundOrTheViewsSetting) {
   const double blur_px = bounded.parameters.at("blur_px_motion");
   EXPECT_GT(blur_px, 32.0);
   EXPECT_EQ(bounded.parameters.at("virtual_views"), 32.0);
-  o.max_views = benerfBudget("balanced").max_views;
+  o.max_views = 200;
+  EXPECT_EQ(BenerfDeblurrer(o).run(obs, request).parameters.at("virtual_views"),
+            std::ceil(2 * blur_px) + 1);
+  o.views_per_px = 1;
   EXPECT_EQ(BenerfDeblurrer(o).run(obs, request).parameters.at("virtual_views"),
             std::ceil(blur_px) + 1);
   o.virtual_views = 12;

@@ -154,6 +154,12 @@ struct BenerfOptions {
   // moved by -0.09 to +0.46 dB at about 0.7 times the solve's time, but sharp synthetic edges at
   // 40 px lost up to 0.25 dB (BENCHMARKS.md, "How many views").
   int max_views = 64;
+  // The pixel grid's views per pixel of blur (PixelGridOptions::views_per_px), up to max_views.
+  // Two instead of one, measured at `fast` with the thresholds given (BENCHMARKS.md, "Two views per
+  // pixel of blur"): the natural suite's eight 15 px frames +0.12 to +0.61 dB (+0.33 on average),
+  // the noisy suite's 15 px frames +0.19 to +0.43, the standard suite's -0.07 to +0.26, in about
+  // 1.5 times the frame's time; at 30 px and more `fast`'s bound of 32 views held the count.
+  double views_per_px = 2;
   double alpha = 0.1;  // event window, fraction of the exposure
   // Event windows per step, the event pixels dealt among them (the paper: one window per step). A
   // single window gives all of a step's event gradients the same two times; many windows spread

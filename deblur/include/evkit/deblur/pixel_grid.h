@@ -22,6 +22,9 @@ struct PixelGridOptions {
   double beta = 0.01;      // weight of the event term (a mean over pixels and views)
   double dim_frame = 0.1;  // as BenerfOptions::dim_frame
   int min_views = 8, max_views = 64;
+  // The views per pixel of the longest image path over the exposure, within [min_views,
+  // max_views]: the blur integral by the midpoint rule at 1 / views_per_px px apart.
+  double views_per_px = 1;
   int subdivision = 1;       // cells per pixel along each axis
   double smoothness = 1e-2;  // weight of the squared log differences between neighbouring cells
   // In colour, the weight of the same for the chroma (each channel's log less the mean of the
