@@ -7,6 +7,7 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <optional>
 #include <utility>
 
 #include "evkit/deblur/edi.h"
@@ -96,13 +97,17 @@ StartFit startFit(const PixelGridProblem& problem, const std::vector<double>& x,
 // the scale of `ratio` within `band` of c0 at which the image, solved for a few steps on the motion
 // registered at that scale, best re-makes the blurry frame. At a wrong c the events ask the image
 // for log changes that the blur does not show, so the solved image re-blurs away from the frame.
-// Each candidate registers its own motion: on one motion registered at a c that is too low, the
-// solves are biased low as well, and around one motion the walk cannot leave the c it was
-// registered at where the counts are off. A motion registered at a larger c is longer, though, and
-// the walk chose the registration that re-makes the frame best rather than the c (15 px: the least
-// at 0.225 for the truth's 0.2); where refineWalkMotions, each candidate's motion is first refined
-// from its start, as the final solve refines its own, and the least is the c's (0.206;
-// BENCHMARKS.md, "The walk's motion"). The band holds the walk where its misfit falls towards small
+// Where refineWalkMotions, the candidates share one registration, at the first candidate's c, and
+// each refines it from there (as the final solve refines its own) before a short solve without the
+// smoothness. With the final solve's smoothness the least was above the truth along the true
+// motion and depths as well (0.22-0.23 for the truth's 0.2 on a ground plane of gravel and on
+// noisy text): the prior flattens the solved image's contrast, and a larger c makes it up. Without
+// it the least is at the truth there, and on one registration, refined for each c, the misfit is
+// smooth in c with its least at the truth whether the registration was at 0.17 or at 0.24, where
+// each candidate's own registration moved it by several percent from one c to the next
+// (BENCHMARKS.md, "The walk's smoothness"). Elsewhere each candidate registers its own motion: on
+// one motion registered at a c that is too low and not refined, the solves are biased low as well
+// (BENCHMARKS.md, "The walk's motion"). The band holds the walk where its misfit falls towards small
 // c without a least (smooth content with noisy events: the events' noise weighs least at a small c,
 // and smooth content blurred looks much like itself; BENCHMARKS.md, "The thresholds from the
 // events' counts"); within it the walk's sharp least refines the counts' c, which is up to 20% off.
@@ -149,15 +154,23 @@ SolvedContrast contrastFromSolves(
   po.hysteresis = 0;
   // Nor the second layer's cells (PixelGridOptions::occlusion): a short solve's misfit scores a c.
   po.occlusion = false;
+  // Nor the smoothness, where the motions are refined (above).
+  if (refine_motions) po.smoothness = 0;
   const int64_t t0 = given.blurry.exposure_start_us, t1 = given.blurry.exposure_end_us;
   const cv::Mat counts = exposureEventCounts(given);
   const double events = cv::sum(counts)[0], channels = given.blurry.image.channels();
   int solves = 0;
   SolvedContrast out;
+  std::optional<ExposureMotion> shared;  // the candidates' one registration, where they refine it
   const auto misfit = [&](double l) {
     const Contrast contrast{std::exp(l), std::exp(l) * ratio};
     ++solves;
-    const ExposureMotion registered = motionFromLatentFrames(given, camera, contrast, o.log, false);
+    if (refine_motions && !shared)
+      shared = motionFromLatentFrames(given, camera, contrast, o.log, false);
+    const ExposureMotion registered =
+        refine_motions && !shared->poses.empty()
+            ? *shared
+            : motionFromLatentFrames(given, camera, contrast, o.log, false);
     if (registered.poses.empty()) return std::numeric_limits<double>::infinity();
     const Trajectory motion = fit(registered.poses);
     DeblurResult unused;
