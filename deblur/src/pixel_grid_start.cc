@@ -107,11 +107,11 @@ StartFit startFit(const PixelGridProblem& problem, const std::vector<double>& x,
 // each candidate's own registration moved it by several percent from one c to the next
 // (BENCHMARKS.md, "The walk's smoothness"). Elsewhere each candidate registers its own motion: on
 // one motion registered at a c that is too low and not refined, the solves are biased low as well
-// (BENCHMARKS.md, "The walk's motion"). The band holds the walk where its misfit falls towards small
-// c without a least (smooth content with noisy events: the events' noise weighs least at a small c,
-// and smooth content blurred looks much like itself; BENCHMARKS.md, "The thresholds from the
-// events' counts"); within it the walk's sharp least refines the counts' c, which is up to 20% off.
-// The candidates' registrations leave the depths' offset unchosen (only their image motion is
+// (BENCHMARKS.md, "The walk's motion"). The band holds the walk where its misfit falls towards
+// small c without a least (smooth content with noisy events: the events' noise weighs least at a
+// small c, and smooth content blurred looks much like itself; BENCHMARKS.md, "The thresholds from
+// the events' counts"); within it the walk's sharp least refines the counts' c, which is up to 20%
+// off. The candidates' registrations leave the depths' offset unchosen (only their image motion is
 // scored). Each pixel's share of the misfit counts as many times as the pixel saw events over the
 // exposure: a pixel that the motion barely moves fires a few, each up to a threshold off what it
 // stands for, and EDI's frame at a smaller c follows that quantisation less, so over all pixels

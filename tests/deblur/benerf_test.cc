@@ -1746,10 +1746,10 @@ TEST(Benerf, WithoutThresholdsTheWalksMotionsAreRefinedBeforeTheyScoreAC) {
 // Without thresholds, the short solves that refine the counts' c take no smoothness and share one
 // registration, refined at each candidate's c: the smoothness flattens a solved image's contrast,
 // and a larger c made it up, so that the walk ended above the truth along the true motion and
-// depths as well (0.22-0.23 for the truth's 0.2 on the natural suite's gravel at 15 px). A ground of
-// gravel at half the suite's size, 15 px, from a 30 ms pre-roll, two shakes. Measured: c 0.192 and
-// 0.196 (the truth 0.2), 36.31 and 36.24 dB (EDI, c searched: 34.78 and 35.02); with the smoothness
-// and a registration for each candidate 0.223 and 0.237, 35.67 and 35.07 dB.
+// depths as well (0.22-0.23 for the truth's 0.2 on the natural suite's gravel at 15 px). A ground
+// of gravel at half the suite's size, 15 px, from a 30 ms pre-roll, two shakes. Measured: c 0.192
+// and 0.196 (the truth 0.2), 36.31 and 36.24 dB (EDI, c searched: 34.78 and 35.02); with the
+// smoothness and a registration for each candidate 0.223 and 0.237, 35.67 and 35.07 dB.
 TEST(Benerf, WithoutThresholdsTheWalksShortSolvesTakeNoSmoothness) {
   if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   for (const uint64_t seed : {1, 2}) {
