@@ -78,8 +78,9 @@ inline bool refineWalkMotions(double blur_px) {
   return blur_px >= kLeastBlur && blur_px <= kMostViewSpacing * (kSearchViews - 1);
 }
 // The thresholds refined from `c0` by short solves of the grid, each on the motion registered at
-// its own c (refined where refineWalkMotions(blur_px)): the c within `band` of c0 (in log c) at
-// which the solved image re-blurs closest to the frame.
+// its own c, or where refineWalkMotions(blur_px) on the first one's registration refined at its own
+// c and without the smoothness: the c within `band` of c0 (in log c) at which the solved image
+// re-blurs closest to the frame.
 struct SolvedContrast {
   Contrast contrast;
   bool at_end = false;  // the least at an end of [0.05, 1]
