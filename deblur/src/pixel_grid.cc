@@ -27,6 +27,10 @@ using pixel_grid_detail::Taps;
 
 namespace {
 
+// The cells a pixel along each axis at which PixelGridOptions::smoothness is set (BeNeRF's
+// default `cells`).
+constexpr int kDefaultCells = 2;
+
 // The sum of body(j) over j in [0, n), the range cut into kPieces pieces whatever the thread
 // count, each summed on its own and the pieces added in order: the same bits on one thread and on
 // many (an OpenMP reduction adds the threads' sums in the order they finish).
@@ -324,9 +328,14 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
   // term holds it.
   // The layer behind is smoothed alike between its own neighbouring cells (behindSmoothness), with
   // the weights of the canvas's.
-  const double cells = static_cast<double>(canvas_w_) * canvas_h_ * C;
-  const double scale = options_.smoothness / cells;
-  const double chroma = C > 1 ? options_.chroma_smoothness / cells : 0.0;
+  // The weights are per pixel of the canvas at the default 2 x 2 cells a pixel, the same prior at
+  // any `subdivision` S: a smooth image's difference between neighbouring cells falls as 1 / S and
+  // its pairs of cells grow as S^2, so the squares' sum over the canvas does not move with S. (Once
+  // per cell, 3 x 3 cells smoothed 4/9 as much as 2 x 2.)
+  const double pixels = static_cast<double>(canvas_w_ / options_.subdivision) *
+                        (canvas_h_ / options_.subdivision) * C * (kDefaultCells * kDefaultCells);
+  const double scale = options_.smoothness / pixels;
+  const double chroma = C > 1 ? options_.chroma_smoothness / pixels : 0.0;
   // The penalty's derivative with respect to the difference u[b + c] - u[a + c] of two
   // neighbouring cells a and b, in each channel; adds the penalty to `sum`.
   const auto pair = [&](size_t a, size_t b, double* d_pair, double& sum) {

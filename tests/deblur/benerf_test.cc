@@ -919,6 +919,40 @@ TEST(PixelGrid, HeldOutPixelsLeaveTheEventTermAndAreScoredApart) {
   EXPECT_GT(held, 0.0);
 }
 
+// The smoothness is the same prior over the image at any cells per pixel: on a smooth ramp its share
+// of the loss is the same with 2 x 2 cells a pixel and with 3 x 3 (it was 4/9 as much with 3 x 3,
+// weighed once per cell), and in colour with the chroma's (each channel its own slope).
+TEST(PixelGrid, SmoothnessIsTheSamePriorAtAnyCellsPerPixel) {
+  for (const bool colour : {false, true}) {
+    SCOPED_TRACE(colour ? "colour" : "grey");
+    const GridScene scene = gridScene(colour);
+    // Each channel its own slope, so that the chroma changes across the image too.
+    cv::Mat ramp(18, 24, colour ? CV_32FC3 : CV_32F);
+    for (int y = 0; y < 18; ++y) {
+      for (int x = 0; x < 24; ++x) {
+        for (int c = 0; c < ramp.channels(); ++c)
+          ramp.ptr<float>(y)[x * ramp.channels() + c] =
+              0.2f + (0.02f - 0.006f * c) * x + (0.005f + 0.004f * c) * y;
+      }
+    }
+    const auto smoothness = [&](int cells) {
+      PixelGridOptions o;
+      o.subdivision = cells;
+      o.chroma_smoothness = colour ? 0.03 : 0.0;
+      const PixelGridProblem with(scene.obs, scene.camera, scene.motion, cv::Mat(),
+                                  Contrast{0.2, 0.25}, o);
+      o.smoothness = o.chroma_smoothness = 0;
+      const PixelGridProblem without(scene.obs, scene.camera, scene.motion, cv::Mat(),
+                                     Contrast{0.2, 0.25}, o);
+      const std::vector<double> x = with.start(ramp);
+      return with.evaluate(x, nullptr) - without.evaluate(x, nullptr);
+    };
+    const double two = smoothness(2), three = smoothness(3);
+    ASSERT_GT(two, 0.0);
+    EXPECT_NEAR(three / two, 1.0, 0.05);
+  }
+}
+
 // The grid's solve adds its sums (the loss, the gradient, the L-BFGS recursion's dot products, the
 // motion's normal equations) over pieces of the work fixed whatever the thread count, in a fixed
 // order: one, two and three threads give the same image and motion gradient to the last bit, and

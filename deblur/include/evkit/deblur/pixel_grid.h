@@ -26,7 +26,9 @@ struct PixelGridOptions {
   // max_views]: the blur integral by the midpoint rule at 1 / views_per_px px apart.
   double views_per_px = 1;
   int subdivision = 1;       // cells per pixel along each axis
-  double smoothness = 1e-2;  // weight of the squared log differences between neighbouring cells
+  // Weight of the squared log differences between neighbouring cells, the same prior over the
+  // image at any subdivision (as set for 2 x 2 cells a pixel; pixel_grid.cc, evaluate).
+  double smoothness = 1e-2;
   // In colour, the weight of the same for the chroma (each channel's log less the mean of the
   // channels' logs), over `smoothness`: the events see brightness only.
   double chroma_smoothness = 0;
