@@ -919,9 +919,9 @@ TEST(PixelGrid, HeldOutPixelsLeaveTheEventTermAndAreScoredApart) {
   EXPECT_GT(held, 0.0);
 }
 
-// The smoothness is the same prior over the image at any cells per pixel: on a smooth ramp its share
-// of the loss is the same with 2 x 2 cells a pixel and with 3 x 3 (it was 4/9 as much with 3 x 3,
-// weighed once per cell), and in colour with the chroma's (each channel its own slope).
+// The smoothness is the same prior over the image at any cells per pixel: on a smooth ramp its
+// share of the loss is the same with 2 x 2 cells a pixel and with 3 x 3 (weighed once per cell, the
+// finer cells had 4/9 of it), and in colour with the chroma's (each channel its own slope).
 TEST(PixelGrid, SmoothnessIsTheSamePriorAtAnyCellsPerPixel) {
   for (const bool colour : {false, true}) {
     SCOPED_TRACE(colour ? "colour" : "grey");
@@ -949,7 +949,7 @@ TEST(PixelGrid, SmoothnessIsTheSamePriorAtAnyCellsPerPixel) {
     };
     const double two = smoothness(2), three = smoothness(3);
     ASSERT_GT(two, 0.0);
-    EXPECT_NEAR(three / two, 1.0, 0.05);
+    EXPECT_NEAR(three / two, 1.0, 0.02);  // measured 0.998 (grey and colour)
   }
 }
 

@@ -25,7 +25,7 @@ struct PixelGridOptions {
   // The views per pixel of the longest image path over the exposure, within [min_views,
   // max_views]: the blur integral by the midpoint rule at 1 / views_per_px px apart.
   double views_per_px = 1;
-  int subdivision = 1;       // cells per pixel along each axis
+  int subdivision = 1;  // cells per pixel along each axis
   // Weight of the squared log differences between neighbouring cells, the same prior over the
   // image at any subdivision (as set for 2 x 2 cells a pixel; pixel_grid.cc, evaluate).
   double smoothness = 1e-2;
