@@ -187,8 +187,8 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
                 "the pixel grid's comparison with mid-exposure is pseudo-Huber beyond this many "
                 "log units (0: squares)")
         .number("smooth", &O::smooth, {0},
-                "the pixel grid's smoothness of the log image between neighbouring cells (0: "
-                "chosen by held-out events)")
+                "the pixel grid's smoothness of the log image between neighbouring cells, per "
+                "pixel: the same prior at any cells (0: chosen by held-out events)")
         .number("chroma_smooth", &O::chroma_smooth, {0},
                 "the pixel grid's smoothness of the chroma between neighbouring cells (colour)")
         .number("hysteresis", &O::hysteresis, {0, 1},
