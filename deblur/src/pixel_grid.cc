@@ -332,10 +332,10 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
   // any `subdivision` S: a smooth image's difference between neighbouring cells falls as 1 / S and
   // its pairs of cells grow as S^2, so the squares' sum over the canvas does not move with S. (Once
   // per cell, 3 x 3 cells smoothed 4/9 as much as 2 x 2.)
-  const double pixels = static_cast<double>(canvas_w_ / options_.subdivision) *
-                        (canvas_h_ / options_.subdivision) * C * (kDefaultCells * kDefaultCells);
-  const double scale = options_.smoothness / pixels;
-  const double chroma = C > 1 ? options_.chroma_smoothness / pixels : 0.0;
+  const double per_pixel = static_cast<double>(behind_w_) * behind_h_ * C *  // the canvas's pixels
+                           (kDefaultCells * kDefaultCells);
+  const double scale = options_.smoothness / per_pixel;
+  const double chroma = C > 1 ? options_.chroma_smoothness / per_pixel : 0.0;
   // The penalty's derivative with respect to the difference u[b + c] - u[a + c] of two
   // neighbouring cells a and b, in each channel; adds the penalty to `sum`.
   const auto pair = [&](size_t a, size_t b, double* d_pair, double& sum) {
