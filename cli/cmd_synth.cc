@@ -33,7 +33,8 @@ int runSynth(const Args& args) {
       "exposure start (absolute µs)")("seed", po::value<uint64_t>()->default_value(1),
                                       "seed of the camera shake and textures")(
       "colour", po::bool_switch(), "colour scene and frames")(
-      "contrast", po::value<double>()->default_value(0.2), "event threshold C (log units)")(
+      "contrast", po::value<std::string>()->default_value("0.2"),
+      "event thresholds C or C_on,C_off (log units)")(
       "sigma", po::value<double>()->default_value(0.0), "threshold mismatch")(
       "shot-noise-hz", po::value<double>()->default_value(0.0),
       "shot noise events per pixel per second")("leak-hz", po::value<double>()->default_value(0.0),
@@ -84,7 +85,8 @@ int runSynth(const Args& args) {
   o.exposure_us = vm["exposure-us"].as<int64_t>();
   o.t_begin_us = vm["start-us"].as<int64_t>();
   o.shake.seed = vm["seed"].as<uint64_t>();
-  o.simulator.contrast_pos = o.simulator.contrast_neg = vm["contrast"].as<double>();
+  std::tie(o.simulator.contrast_pos, o.simulator.contrast_neg) =
+      parseNumberPair(vm["contrast"].as<std::string>(), "contrast");
   o.simulator.sigma = vm["sigma"].as<double>();
   o.simulator.shot_noise_rate_hz = vm["shot-noise-hz"].as<double>();
   o.simulator.leak_rate_hz = vm["leak-hz"].as<double>();
@@ -100,6 +102,7 @@ int runSynth(const Args& args) {
   if (!(o.shake.rotation_share >= 0 && o.shake.rotation_share <= 1) || o.preroll_us < 0)
     throw UsageError("--rotation-share must be in [0, 1] and --preroll-us not negative");
   if (!(o.shake.blur_px > 0) || o.exposure_us <= 0 || !(o.simulator.contrast_pos > 0) ||
+      !(o.simulator.contrast_neg > 0) ||
       o.supersample < 1 || !(o.gain > 0)) {
     throw UsageError(
         "--blur-px, --exposure-us, --contrast, --gain and --supersample must be positive");

@@ -260,7 +260,8 @@ SynthReport writeObservation(const Scene& scene, const SynthOptions& o, const st
   std::ostringstream info;
   info << "blur_px " << report.blur_px << "\nevents " << report.events << "\nrenders "
        << report.renders << "\nmax_fraction_over_c " << report.max_fraction_over_c << "\ngain "
-       << o.gain << "\ncontrast " << o.simulator.contrast_pos << "\nsigma " << o.simulator.sigma
+       << o.gain << "\ncontrast " << o.simulator.contrast_pos << "\ncontrast_off " << o.simulator.contrast_neg
+       << "\nsigma " << o.simulator.sigma
        << "\nshot_noise_hz " << o.simulator.shot_noise_rate_hz << "\nleak_hz "
        << o.simulator.leak_rate_hz << "\ndrop_events " << o.drop_events << "\nseed " << o.shake.seed
        << "\nknots_kind cubic\n"
