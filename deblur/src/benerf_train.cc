@@ -638,7 +638,9 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     const BlurMeasurement m =
         s.measured.searched ? s.measured : measureBlur(given, std::nullopt, o.log);
     result.parameters["contrast_searched"] = m.c_on;
-    const double ratio = m.c_off / m.c_on;
+    // EDI's search takes one c for both signs; the ratio c_off / c_on is found from the counts
+    // (contrastFromCounts), along each motion the counts are taken on before the walk.
+    double ratio = m.c_off / m.c_on;
     // The motion registered at too large a c moves the image too far, and the counts' c rises with
     // it (on a rocket before its backdrop, 0.22 along the motion registered at the truth's 0.2,
     // 0.27 at 0.3, 0.29 at 0.4): registered once more at the count and counted again. Not until the
@@ -647,11 +649,17 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     const auto counts = [&](const ExposureMotion& at, const Trajectory& path) {
       return contrastFromCounts(given, camera, path, at.inverse_depth, ratio, o.log);
     };
+    const auto countsAndRatio = [&](const ExposureMotion& at, const Trajectory& path) {
+      const CountedContrast found =
+          contrastFromCounts(given, camera, path, at.inverse_depth, 0.0, o.log);
+      if (found.ratio > 0) ratio = found.ratio;
+      return found;
+    };
     const auto inRange = [](double c) { return c >= kLeastContrast && c <= kMostContrast; };
     // The motion the count was taken along, and its trajectory.
     const ExposureMotion* counted_motion = &registered;
     Trajectory counted_path = fit(registered.poses);
-    CountedContrast counted = counts(registered, counted_path);
+    CountedContrast counted = countsAndRatio(registered, counted_path);
     result.parameters["contrast_from_counts_searched"] = counted.c;
     if (!inRange(counted.c)) return false;
     const double registered_c = s.registered_away_c > 0 ? s.registered_away_c : m.c_on;
@@ -671,8 +679,9 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
       counted_c = counted.c;
       counted_motion = &again;
       counted_path = fit(again.poses);
-      counted = counts(again, counted_path);
+      counted = countsAndRatio(again, counted_path);
     }
+    result.parameters["contrast_ratio"] = ratio;
     result.parameters["contrast_from_counts"] = counted.c;
     result.parameters["contrast_counts_correlation"] = counted.correlation;
     if (!inRange(counted.c)) return false;

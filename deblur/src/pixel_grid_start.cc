@@ -256,19 +256,33 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
   const size_t N = static_cast<size_t>(W) * H;
   const EventSpan span = obs.events.sliceTime(t0, t1);
   std::vector<float> level(N * kTimes, 0.0f);
-  const float off_step = -static_cast<float>(ratio);
-  for (size_t i = 0; i < span.size(); ++i) {
-    const int k = 1 + static_cast<int>((span.t[i] - t0) * (kTimes - 1) / (t1 - t0));
-    if (k < 1 || k >= kTimes || span.x[i] >= W || span.y[i] >= H) continue;
-    const size_t pixel = static_cast<size_t>(span.y[i]) * W + span.x[i];
-    level[pixel * kTimes + static_cast<size_t>(k)] += span.p[i] > 0 ? 1.0f : off_step;
-  }
   cv::Mat net(H, W, CV_64F);
-  for (size_t pixel = 0; pixel < N; ++pixel) {
-    float* levels = &level[pixel * kTimes];
-    for (int k = 1; k < kTimes; ++k) levels[k] += levels[k - 1];
-    net.at<double>(static_cast<int>(pixel / W), static_cast<int>(pixel % W)) = levels[kTimes - 1];
+  // The exposure's ON and OFF counts apart, where the ratio is to be found.
+  const bool find_ratio = !(ratio > 0);
+  cv::Mat on_count, off_count;
+  if (find_ratio) {
+    on_count = cv::Mat::zeros(H, W, CV_64F);
+    off_count = cv::Mat::zeros(H, W, CV_64F);
+    for (size_t i = 0; i < span.size(); ++i) {
+      if (span.x[i] >= W || span.y[i] >= H || span.t[i] <= t0) continue;
+      (span.p[i] > 0 ? on_count : off_count).at<double>(span.y[i], span.x[i]) += 1;
+    }
   }
+  const auto countLevels = [&](double off_ratio) {
+    std::fill(level.begin(), level.end(), 0.0f);
+    const float off_step = -static_cast<float>(off_ratio);
+    for (size_t i = 0; i < span.size(); ++i) {
+      const int k = 1 + static_cast<int>((span.t[i] - t0) * (kTimes - 1) / (t1 - t0));
+      if (k < 1 || k >= kTimes || span.x[i] >= W || span.y[i] >= H) continue;
+      const size_t pixel = static_cast<size_t>(span.y[i]) * W + span.x[i];
+      level[pixel * kTimes + static_cast<size_t>(k)] += span.p[i] > 0 ? 1.0f : off_step;
+    }
+    for (size_t pixel = 0; pixel < N; ++pixel) {
+      float* levels = &level[pixel * kTimes];
+      for (int k = 1; k < kTimes; ++k) levels[k] += levels[k - 1];
+      net.at<double>(static_cast<int>(pixel / W), static_cast<int>(pixel % W)) = levels[kTimes - 1];
+    }
+  };
   cv::Mat grey;
   toGrey(blurry.image).convertTo(grey, CV_64F);
   cv::Mat log_blurry(H, W, CV_64F);
@@ -360,6 +374,58 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
     }
     return all;
   };
+  // The ratio c_off / c_on where it was not given. Averaged along the paths, the ON counts b_on
+  // and the OFF counts b_off meet the log change a between the paths' ends as a = c_on b_on -
+  // c_off b_off, that is b_on = a / c_on + ratio b_off. Most of the counts' spread over the pixels
+  // is texture passing by, up and down (ON and OFF counts in the ratio's proportion), so b_off is
+  // mostly signal; the counts' noise pulls a regression's slope towards 0 all the same, b_on's on
+  // b_off low and b_off's on b_on low the other way round. Both are fitted, each with an
+  // intercept (noise events of either sign at one rate) and the log change, and the ratio is their
+  // geometric mean, where the two pulls cancel to first order: the same ratio, inverted, with the
+  // signs swapped.
+  const auto ratioFromCounts = [&]() {
+    using Moments = Eigen::Matrix4d;  // of (1, a, b_on, b_off)
+    std::vector<Moments> rows(static_cast<size_t>(H), Moments::Zero());
+#pragma omp parallel for schedule(static)
+    for (int y = 0; y < H; ++y) {
+      Moments& row = rows[static_cast<size_t>(y)];
+      for (int x = 0; x < W; ++x) {
+        const size_t pixel = static_cast<size_t>(y) * W + x;
+        if (!inside[pixel]) continue;
+        const Eigen::Vector2f* path = &paths[pixel * kTimes];
+        const Eigen::Vector2d here(x, y);
+        const auto point = [&](int k) { return here + path[k].cast<double>(); };
+        const Eigen::Vector4d v(
+            1.0, at(log_blurry, point(kTimes - 1)) - at(log_blurry, point(0)),
+            benerf_detail::trapezoidMean(kTimes, [&](int k) { return at(on_count, point(k)); }),
+            benerf_detail::trapezoidMean(kTimes, [&](int k) { return at(off_count, point(k)); }));
+        row.noalias() += v * v.transpose();
+      }
+    }
+    Moments all = Moments::Zero();
+    for (const Moments& row : rows) all += row;
+    // The slope of column `on` on (1, a, column `off`), by the normal equations.
+    const auto slope = [&](int on, int off) {
+      const std::array<int, 3> x{0, 1, off};
+      Eigen::Matrix3d xx;
+      Eigen::Vector3d xy;
+      for (int r = 0; r < 3; ++r) {
+        for (int c = 0; c < 3; ++c) xx(r, c) = all(x[r], x[c]);
+        xy(r) = all(x[r], on);
+      }
+      return xx.ldlt().solve(xy)(2);
+    };
+    const double on_on_off = slope(2, 3), off_on_on = slope(3, 2);
+    const double found = on_on_off > 0 && off_on_on > 0 ? std::sqrt(on_on_off / off_on_on)
+                                                          : std::numeric_limits<double>::quiet_NaN();
+    return found;
+  };
+  if (find_ratio) {
+    ratio = ratioFromCounts();
+    out.ratio = ratio;
+    if (!(ratio > 0)) return out;
+  }
+  countLevels(ratio);
   const Sums sums = regress(net, log_blurry, cv::Mat());
   if (sums.sab > 0) out.c = sums.saa / sums.sab;
   const double n = std::max(sums.n, 1.0);

@@ -1701,6 +1701,69 @@ TEST(Benerf, TheThresholdsFromTheCountsAreNotBiasedByNoiseEvents) {
       << with_noise.correlation;
 }
 
+// A sensor's ON and OFF thresholds differ (DAVIS biases set them apart). The ratio c_off / c_on
+// from the counts along the motion registered at the truth: cat and bricks at half the natural
+// suite's size, 25 px, from a 30 ms pre-roll with the suite's noise, the thresholds 0.2 and 0.3 and
+// the other way round. Measured 1.582 for 1.5 and 0.680 for 0.667; the same ratio inverted with the
+// signs swapped. It comes out high by 2-8% on this scene (so without noise too, and at 15 px by 8-11%;
+// 1.534 at full size and 30 px), on the coffee and astronaut within 3%: a bias of the log change
+// read off the blurry frame that is not yet understood. The counts' c at that ratio, 0.182 and
+// 0.275, is the start the short solves of the grid refine.
+TEST(Benerf, TheThresholdsRatioFromTheCounts) {
+  for (const bool on_lower : {true, false}) {
+    synth::SynthOptions o = naturalEvents(1, true);
+    o.simulator.contrast_pos = on_lower ? 0.2 : 0.3;
+    o.simulator.contrast_neg = on_lower ? 0.3 : 0.2;
+    const auto natural = halfSizeNatural("cat_bricks", {}, o, 1, 25, 0.5);
+    if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
+    const Observation& obs = *natural;
+    ASSERT_TRUE(obs.contrast);
+    const double truth = obs.contrast->off / obs.contrast->on;
+    const nerf::PinholeCamera camera = obs.camera.withSize(174, 130);
+    const ExposureMotion m = motionFromLatentFrames(obs, camera, obs.contrast);
+    ASSERT_FALSE(m.poses.empty());
+    const Trajectory motion = fitTrajectory(TrajectoryKind::kCubicSE3, 4,
+                                            obs.blurry.exposure_start_us,
+                                            obs.blurry.exposure_end_us, m.poses);
+    const CountedContrast found = contrastFromCounts(obs, camera, motion, m.inverse_depth, 0.0, {});
+    EXPECT_NEAR(found.ratio, truth, 0.08 * truth) << "c_on " << found.c;
+    EXPECT_NEAR(found.c, obs.contrast->on, 0.12 * obs.contrast->on) << "ratio " << found.ratio;
+    // Given a ratio (1, as EDI's search assumes), the counts do not look for one.
+    EXPECT_EQ(contrastFromCounts(obs, camera, motion, m.inverse_depth, 1.0, {}).ratio, 0.0);
+  }
+}
+
+// Without thresholds, with the ON threshold 0.3 and the OFF 0.2 (a colour motorcycle at half the
+// natural suite's size, 25 px, the suite's noise): the grid finds the ratio from the counts and
+// comes within 0.5 dB of the run given both thresholds. Measured: the ratio 0.648 for 0.667, c
+// 0.301, 29.93 dB against 29.98 given; EDI with its searched c 19.45 dB (26.48 given both). At full
+// size (346 x 260, 30 px): 0.656, 31.29 dB against 31.33 given, where one c for both signs gave
+// 29.46.
+TEST(Benerf, WithoutThresholdsTheirRatioIsFound) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
+  synth::SynthOptions o = naturalEvents(2, true);
+  o.simulator.contrast_pos = 0.3;
+  o.simulator.contrast_neg = 0.2;
+  synth::SceneOptions colour;
+  colour.colour = true;
+  colour.seed = 2;
+  const auto natural = halfSizeNatural("motorcycle", colour, o, 2, 25, 0.5);
+  if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
+  BenerfOptions given_options = benerfBudget("fast");
+  given_options.iterations = 300;
+  given_options.samples = 8;
+  const AtMidExposure given = benerfAndEdi(*natural, given_options);
+  double truth = 0;
+  const AtMidExposure m = withoutThresholds(*natural, &truth);
+  const auto& p = m.benerf.parameters;
+  ASSERT_TRUE(p.count("contrast_ratio")) << "the grid declined";
+  EXPECT_NEAR(p.at("contrast_ratio"), 0.2 / 0.3, 0.1 * 0.2 / 0.3);
+  EXPECT_GT(m.benerf_psnr, given.benerf_psnr - 0.5)
+      << "ratio " << p.at("contrast_ratio") << ", c " << p.at("contrast_estimated");
+  EXPECT_GT(m.benerf_psnr, m.edi_psnr + 5.0)
+      << "BeNeRF " << m.benerf_psnr << " dB, EDI (c searched) " << m.edi_psnr << " dB";
+}
+
 // Without thresholds, where most of the image barely moves: the rocket before its backdrop at
 // half the suite's size with 85% of the image motion from translation, so that the backdrop (84% of
 // the image, at 8 m) moves 1.6 px over the exposure and the rocket (7%, at 1.1 m) up to 15 px;

@@ -430,6 +430,7 @@ ExposureMotion registerAwayFromSearch(
 // together.
 struct CountedContrast {
   double c = 0, correlation = 0;
+  double ratio = 0;  // c_off / c_on found from the counts where `ratio` was not positive
 };
 CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& camera,
                                    const Trajectory& motion, const cv::Mat& inverse_depth,
