@@ -652,7 +652,11 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     const auto countsAndRatio = [&](const ExposureMotion& at, const Trajectory& path) {
       const CountedContrast found =
           contrastFromCounts(given, camera, path, at.inverse_depth, 0.0, o.log);
-      if (found.ratio > 0) ratio = found.ratio;
+      if (found.ratio > 0) {
+        ratio = found.ratio;
+        result.parameters["contrast_ratio_low"] = found.ratio_low;
+        result.parameters["contrast_ratio_high"] = found.ratio_high;
+      }
       return found;
     };
     const auto inRange = [](double c) { return c >= kLeastContrast && c <= kMostContrast; };

@@ -427,10 +427,14 @@ ExposureMotion registerAwayFromSearch(
 // biases the short solves' misfit towards small c wherever it is a good share of the events
 // (BENCHMARKS.md, "The thresholds from the events' counts"). `correlation`: of the counts and the
 // log change, over the pixels whose paths stay inside the frame; c is NaN where they do not rise
-// together.
+// together. Where `ratio` is not positive, the ratio c_off / c_on is found from the counts first
+// (`ratio`), with the bounds the two regressions of the ON and OFF counts on each other put on it
+// (`ratio_low`, `ratio_high`); where those hold 1 the counts cannot tell the thresholds apart and
+// the ratio is 1; NaN where the two regressions' slopes are not both positive (c is not counted
+// then).
 struct CountedContrast {
   double c = 0, correlation = 0;
-  double ratio = 0;  // c_off / c_on found from the counts where `ratio` was not positive
+  double ratio = 0, ratio_low = 0, ratio_high = 0;
 };
 CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& camera,
                                    const Trajectory& motion, const cv::Mat& inverse_depth,
