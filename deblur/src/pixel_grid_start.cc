@@ -8,6 +8,7 @@
 #include <cmath>
 #include <limits>
 #include <optional>
+#include <type_traits>
 #include <utility>
 
 #include "evkit/deblur/edi.h"
@@ -336,33 +337,41 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
   struct Sums {
     double n = 0, sa = 0, sb = 0, saa = 0, sbb = 0, sab = 0;
   };
-  const auto regress = [&](const cv::Mat& along, const cv::Mat& ends, const cv::Mat& scale) {
-    std::vector<Sums> rows(static_cast<size_t>(H));
+  // Each pixel whose path stays inside the frame, row by row: add(row's sums, x, y, point), with
+  // point(k) where pixel (x, y) sees the mid-exposure image at the path's k-th time; the rows'
+  // sums, each from `zero`, returned in order to be added so.
+  const auto sumOverPaths = [&](const auto& zero, const auto& add) {
+    std::vector<std::decay_t<decltype(zero)>> rows(static_cast<size_t>(H), zero);
 #pragma omp parallel for schedule(static)
     for (int y = 0; y < H; ++y) {
-      Sums& row = rows[static_cast<size_t>(y)];
+      auto& row = rows[static_cast<size_t>(y)];
       for (int x = 0; x < W; ++x) {
         const size_t pixel = static_cast<size_t>(y) * W + x;
         if (!inside[pixel]) continue;
         const Eigen::Vector2f* path = &paths[pixel * kTimes];
         const Eigen::Vector2d here(x, y);
-        const auto point = [&](int k) { return here + path[k].cast<double>(); };
-        double averaged =
-            benerf_detail::trapezoidMean(kTimes, [&](int k) { return at(along, point(k)); });
-        double change = at(ends, point(kTimes - 1)) - at(ends, point(0));
-        if (!scale.empty()) {
-          const double w = 1.0 / scale.at<double>(y, x);
-          averaged *= w;
-          change *= w;
-        }
-        row.n += 1;
-        row.sa += change;
-        row.sb += averaged;
-        row.saa += change * change;
-        row.sbb += averaged * averaged;
-        row.sab += change * averaged;
+        add(row, x, y, [&](int k) { return here + path[k].cast<double>(); });
       }
     }
+    return rows;
+  };
+  const auto regress = [&](const cv::Mat& along, const cv::Mat& ends, const cv::Mat& scale) {
+    const auto rows = sumOverPaths(Sums{}, [&](Sums& row, int x, int y, const auto& point) {
+      double averaged =
+          benerf_detail::trapezoidMean(kTimes, [&](int k) { return at(along, point(k)); });
+      double change = at(ends, point(kTimes - 1)) - at(ends, point(0));
+      if (!scale.empty()) {
+        const double w = 1.0 / scale.at<double>(y, x);
+        averaged *= w;
+        change *= w;
+      }
+      row.n += 1;
+      row.sa += change;
+      row.sb += averaged;
+      row.saa += change * change;
+      row.sbb += averaged * averaged;
+      row.sab += change * averaged;
+    });
     Sums all;
     for (const Sums& row : rows) {
       all.n += row.n;
@@ -392,23 +401,14 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
   // setting and EDI's search have it (BENCHMARKS.md, "Two thresholds").
   const auto ratioFromCounts = [&]() {
     using Moments = Eigen::Matrix4d;  // of (1, a, b_on, b_off)
-    std::vector<Moments> rows(static_cast<size_t>(H), Moments::Zero());
-#pragma omp parallel for schedule(static)
-    for (int y = 0; y < H; ++y) {
-      Moments& row = rows[static_cast<size_t>(y)];
-      for (int x = 0; x < W; ++x) {
-        const size_t pixel = static_cast<size_t>(y) * W + x;
-        if (!inside[pixel]) continue;
-        const Eigen::Vector2f* path = &paths[pixel * kTimes];
-        const Eigen::Vector2d here(x, y);
-        const auto point = [&](int k) { return here + path[k].cast<double>(); };
-        const Eigen::Vector4d v(
-            1.0, at(log_blurry, point(kTimes - 1)) - at(log_blurry, point(0)),
-            benerf_detail::trapezoidMean(kTimes, [&](int k) { return at(on_count, point(k)); }),
-            benerf_detail::trapezoidMean(kTimes, [&](int k) { return at(off_count, point(k)); }));
-        row.noalias() += v * v.transpose();
-      }
-    }
+    const auto rows =
+        sumOverPaths(Moments::Zero().eval(), [&](Moments& row, int, int, const auto& point) {
+          const Eigen::Vector4d v(
+              1.0, at(log_blurry, point(kTimes - 1)) - at(log_blurry, point(0)),
+              benerf_detail::trapezoidMean(kTimes, [&](int k) { return at(on_count, point(k)); }),
+              benerf_detail::trapezoidMean(kTimes, [&](int k) { return at(off_count, point(k)); }));
+          row.noalias() += v * v.transpose();
+        });
     Moments all = Moments::Zero();
     for (const Moments& row : rows) all += row;
     // The slope of column `on` on (1, a, column `off`), by the normal equations.
