@@ -1710,6 +1710,7 @@ TEST(Benerf, TheThresholdsFromTheCountsAreNotBiasedByNoiseEvents) {
 // change read off the blurry frame that is not yet understood. The counts' c at that ratio, 0.182
 // and 0.275, is the start the short solves of the grid refine.
 TEST(Benerf, TheThresholdsRatioFromTheCounts) {
+  if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   for (const bool on_lower : {true, false}) {
     synth::SynthOptions o = naturalEvents(1, true);
     o.simulator.contrast_pos = on_lower ? 0.2 : 0.3;
