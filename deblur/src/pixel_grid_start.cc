@@ -248,16 +248,8 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
   const int64_t t0 = blurry.exposure_start_us, t1 = blurry.exposure_end_us;
   CountedContrast out{std::numeric_limits<double>::quiet_NaN(), 0.0};
   if (W < 2 || H < 2) return out;  // no bilinear stencil fits
-  // Each pixel's net count (ON less `ratio` OFF) from the exposure's start to each of the path's
-  // times, pixel by pixel (level[pixel * kTimes + k]): the events of each interval between them,
-  // then added up. The last is the exposure's net count, and the others make EDI's frames for the
-  // refinement below. In float: exact for counts under 2^24 where the ratio is 1, to seven digits
-  // otherwise; a 1280 x 720 frame's levels take 77 MB, where doubles for each time's ON, OFF and
-  // level took 464.
   const size_t N = static_cast<size_t>(W) * H;
   const EventSpan span = obs.events.sliceTime(t0, t1);
-  std::vector<float> level(N * kTimes, 0.0f);
-  cv::Mat net(H, W, CV_64F);
   // The exposure's ON and OFF counts apart, where the ratio is to be found.
   const bool find_ratio = !(ratio > 0);
   cv::Mat on_count, off_count;
@@ -269,21 +261,6 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
       (span.p[i] > 0 ? on_count : off_count).at<double>(span.y[i], span.x[i]) += 1;
     }
   }
-  const auto countLevels = [&](double off_ratio) {
-    std::fill(level.begin(), level.end(), 0.0f);
-    const float off_step = -static_cast<float>(off_ratio);
-    for (size_t i = 0; i < span.size(); ++i) {
-      const int k = 1 + static_cast<int>((span.t[i] - t0) * (kTimes - 1) / (t1 - t0));
-      if (k < 1 || k >= kTimes || span.x[i] >= W || span.y[i] >= H) continue;
-      const size_t pixel = static_cast<size_t>(span.y[i]) * W + span.x[i];
-      level[pixel * kTimes + static_cast<size_t>(k)] += span.p[i] > 0 ? 1.0f : off_step;
-    }
-    for (size_t pixel = 0; pixel < N; ++pixel) {
-      float* levels = &level[pixel * kTimes];
-      for (int k = 1; k < kTimes; ++k) levels[k] += levels[k - 1];
-      net.at<double>(static_cast<int>(pixel / W), static_cast<int>(pixel % W)) = levels[kTimes - 1];
-    }
-  };
   cv::Mat grey;
   toGrey(blurry.image).convertTo(grey, CV_64F);
   cv::Mat log_blurry(H, W, CV_64F);
@@ -435,7 +412,26 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
     ratio = out.ratio;
     if (!(ratio > 0)) return out;
   }
-  countLevels(ratio);
+  // Each pixel's net count (ON less `ratio` OFF) from the exposure's start to each of the path's
+  // times, pixel by pixel (level[pixel * kTimes + k]): the events of each interval between them,
+  // then added up. The last is the exposure's net count, and the others make EDI's frames for the
+  // refinement below. In float: exact for counts under 2^24 where the ratio is 1, to seven digits
+  // otherwise; a 1280 x 720 frame's levels take 77 MB, where doubles for each time's ON, OFF and
+  // level took 464.
+  std::vector<float> level(N * kTimes, 0.0f);
+  cv::Mat net(H, W, CV_64F);
+  const float off_step = -static_cast<float>(ratio);
+  for (size_t i = 0; i < span.size(); ++i) {
+    const int k = 1 + static_cast<int>((span.t[i] - t0) * (kTimes - 1) / (t1 - t0));
+    if (k < 1 || k >= kTimes || span.x[i] >= W || span.y[i] >= H) continue;
+    const size_t pixel = static_cast<size_t>(span.y[i]) * W + span.x[i];
+    level[pixel * kTimes + static_cast<size_t>(k)] += span.p[i] > 0 ? 1.0f : off_step;
+  }
+  for (size_t pixel = 0; pixel < N; ++pixel) {
+    float* levels = &level[pixel * kTimes];
+    for (int k = 1; k < kTimes; ++k) levels[k] += levels[k - 1];
+    net.at<double>(static_cast<int>(pixel / W), static_cast<int>(pixel % W)) = levels[kTimes - 1];
+  }
   const Sums sums = regress(net, log_blurry, cv::Mat());
   if (sums.sab > 0) out.c = sums.saa / sums.sab;
   const double n = std::max(sums.n, 1.0);
