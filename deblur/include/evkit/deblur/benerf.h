@@ -431,7 +431,9 @@ ExposureMotion registerAwayFromSearch(
 // (`ratio`), with the bounds the two regressions of the ON and OFF counts on each other put on it
 // (`ratio_low`, `ratio_high`); where those hold 1 the counts cannot tell the thresholds apart and
 // the ratio is 1; NaN where the two regressions' slopes are not both positive (c is not counted
-// then).
+// then). The counts meet the blur of the log, the blurry frame gives the log of the blur: the ratio
+// is found again from the frame's log less each pixel's Jensen gap, which EDI's frame at the c and
+// ratio found gives, until it settles. The exposure's events are those in [start, end).
 struct CountedContrast {
   double c = 0, correlation = 0;
   double ratio = 0, ratio_low = 0, ratio_high = 0;
