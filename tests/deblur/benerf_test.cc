@@ -10,6 +10,7 @@
 #include <fstream>
 #include <functional>
 #include <map>
+#include <optional>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <random>
@@ -1630,6 +1631,27 @@ TEST(Benerf, ThresholdsNotGivenAreTheScaleThatTheMotionExplains) {
       << " dB";
 }
 
+// The motion registered through EDI's frames at the observation's thresholds, fitted as the grid
+// fits it (a cubic spline of 4 knots over the exposure), with the registration's inverse depths.
+struct RegisteredMotion {
+  Trajectory motion;
+  cv::Mat inverse_depth;
+  // The thresholds from the counts along it at `ratio` (0: the ratio found too).
+  CountedContrast counted(const Observation& obs, const nerf::PinholeCamera& camera,
+                          double ratio) const {
+    return contrastFromCounts(obs, camera, motion, inverse_depth, ratio, {});
+  }
+};
+// None where nothing registered.
+std::optional<RegisteredMotion> registeredMotion(const Observation& obs,
+                                                 const nerf::PinholeCamera& camera) {
+  const ExposureMotion m = motionFromLatentFrames(obs, camera, obs.contrast);
+  if (m.poses.empty()) return std::nullopt;
+  return RegisteredMotion{fitTrajectory(TrajectoryKind::kCubicSE3, 4, obs.blurry.exposure_start_us,
+                                        obs.blurry.exposure_end_us, m.poses),
+                          m.inverse_depth};
+}
+
 // The thresholds from the events' counts along the motion registered at the truth: bricks before a
 // cat at half the natural suite's size, 15 px, from a 30 ms pre-roll without noise, then with ten
 // noise events per pixel over the exposure on top (ON and OFF alike, uniform in time and place:
@@ -1651,18 +1673,17 @@ TEST(Benerf, TheThresholdsFromTheCountsAreNotBiasedByNoiseEvents) {
   const Observation& obs = *natural;
   const double truth = obs.contrast->on;
   const nerf::PinholeCamera camera = obs.camera.withSize(174, 130);
-  const ExposureMotion m = motionFromLatentFrames(obs, camera, obs.contrast);
-  ASSERT_FALSE(m.poses.empty());
+  const auto registered = registeredMotion(obs, camera);
+  ASSERT_TRUE(registered);
   const int64_t t0 = obs.blurry.exposure_start_us, t1 = obs.blurry.exposure_end_us;
-  const Trajectory motion = fitTrajectory(TrajectoryKind::kCubicSE3, 4, t0, t1, m.poses);
   CountedContrast clean;
   {
     const Threads two(2);
-    clean = contrastFromCounts(obs, camera, motion, m.inverse_depth, 1.0, {});
+    clean = registered->counted(obs, camera, 1.0);
   }
   {
     const Threads one(1);  // the same bits on one thread as on two
-    EXPECT_EQ(contrastFromCounts(obs, camera, motion, m.inverse_depth, 1.0, {}).c, clean.c);
+    EXPECT_EQ(registered->counted(obs, camera, 1.0).c, clean.c);
   }
   std::mt19937 rng(7);
   std::uniform_int_distribution<int64_t> when(t0, t1 - 1);
@@ -1676,8 +1697,7 @@ TEST(Benerf, TheThresholdsFromTheCountsAreNotBiasedByNoiseEvents) {
                     static_cast<int8_t>(2 * sign(rng) - 1));
   Observation noisy = obs;
   noisy.events = merge(obs.events.view(), noise.view());
-  const CountedContrast with_noise =
-      contrastFromCounts(noisy, camera, motion, m.inverse_depth, 1.0, {});
+  const CountedContrast with_noise = registered->counted(noisy, camera, 1.0);
   EXPECT_NEAR(clean.c, truth, 0.1 * truth);
   EXPECT_NEAR(with_noise.c, clean.c, 0.05 * clean.c);
   // Along the true motion: each true pose as seen from the mid-exposure camera.
@@ -1720,12 +1740,9 @@ TEST(Benerf, TheThresholdsRatioFromTheCounts) {
     ASSERT_TRUE(obs.contrast);
     const double truth = obs.contrast->off / obs.contrast->on;
     const nerf::PinholeCamera camera = obs.camera.withSize(174, 130);
-    const ExposureMotion m = motionFromLatentFrames(obs, camera, obs.contrast);
-    ASSERT_FALSE(m.poses.empty());
-    const Trajectory motion =
-        fitTrajectory(TrajectoryKind::kCubicSE3, 4, obs.blurry.exposure_start_us,
-                      obs.blurry.exposure_end_us, m.poses);
-    const CountedContrast found = contrastFromCounts(obs, camera, motion, m.inverse_depth, 0.0, {});
+    const auto registered = registeredMotion(obs, camera);
+    ASSERT_TRUE(registered);
+    const CountedContrast found = registered->counted(obs, camera, 0.0);
     EXPECT_NEAR(found.ratio, truth, 0.04 * truth) << "c_on " << found.c;
     // The two regressions' bounds hold it, and not 1.
     EXPECT_LT(found.ratio_low, found.ratio);
@@ -1734,7 +1751,7 @@ TEST(Benerf, TheThresholdsRatioFromTheCounts) {
         << found.ratio_low << " - " << found.ratio_high;
     EXPECT_NEAR(found.c, obs.contrast->on, 0.12 * obs.contrast->on) << "ratio " << found.ratio;
     // Given a ratio (1, as EDI's search assumes), the counts do not look for one.
-    EXPECT_EQ(contrastFromCounts(obs, camera, motion, m.inverse_depth, 1.0, {}).ratio, 0.0);
+    EXPECT_EQ(registered->counted(obs, camera, 1.0).ratio, 0.0);
   }
 }
 
@@ -1754,12 +1771,9 @@ TEST(Benerf, TheThresholdsRatioIsReadOffTheBlurOfTheLog) {
     if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
     const Observation& obs = *natural;
     const nerf::PinholeCamera camera = obs.camera.withSize(174, 130);
-    const ExposureMotion m = motionFromLatentFrames(obs, camera, obs.contrast);
-    ASSERT_FALSE(m.poses.empty()) << scene;
-    const Trajectory motion =
-        fitTrajectory(TrajectoryKind::kCubicSE3, 4, obs.blurry.exposure_start_us,
-                      obs.blurry.exposure_end_us, m.poses);
-    const CountedContrast found = contrastFromCounts(obs, camera, motion, m.inverse_depth, 0.0, {});
+    const auto registered = registeredMotion(obs, camera);
+    ASSERT_TRUE(registered) << scene;
+    const CountedContrast found = registered->counted(obs, camera, 0.0);
     EXPECT_NEAR(found.ratio, 1.0, 0.045)
         << scene << ": bounds " << found.ratio_low << " - " << found.ratio_high;
   }
@@ -1776,23 +1790,20 @@ TEST(Benerf, WhereTheCountsCannotTellTheThresholdsApartTheRatioIsOne) {
   const Observation obs = presetObservation("ground", 15);
   const nerf::PinholeCamera camera =
       obs.camera.withSize(obs.blurry.image.cols, obs.blurry.image.rows);
-  const ExposureMotion m = motionFromLatentFrames(obs, camera, obs.contrast);
-  ASSERT_FALSE(m.poses.empty());
-  const Trajectory motion =
-      fitTrajectory(TrajectoryKind::kCubicSE3, 4, obs.blurry.exposure_start_us,
-                    obs.blurry.exposure_end_us, m.poses);
-  const CountedContrast found = contrastFromCounts(obs, camera, motion, m.inverse_depth, 0.0, {});
+  const auto registered = registeredMotion(obs, camera);
+  ASSERT_TRUE(registered);
+  const CountedContrast found = registered->counted(obs, camera, 0.0);
   EXPECT_LT(found.ratio_low, 1.0);
   EXPECT_GT(found.ratio_high, 1.0);
   EXPECT_EQ(found.ratio, 1.0);
-  EXPECT_EQ(found.c, contrastFromCounts(obs, camera, motion, m.inverse_depth, 1.0, {}).c);
+  EXPECT_EQ(found.c, registered->counted(obs, camera, 1.0).c);
 }
 
 // Without thresholds, with the ON threshold 0.3 and the OFF 0.2 (a colour motorcycle at half the
 // natural suite's size, 25 px, the suite's noise): the grid finds the ratio from the counts and
-// comes within 0.5 dB of the run given both thresholds. Measured: the ratio 0.648 for 0.667, c
-// 0.301, 29.93 dB against 29.98 given; EDI with its searched c 19.45 dB (26.48 given both). At full
-// size (346 x 260, 30 px): 0.656, 31.29 dB against 31.33 given, where one c for both signs gave
+// comes within 0.5 dB of the run given both thresholds. Measured: the ratio 0.651 for 0.667, c
+// 0.295, 29.94 dB against 29.98 given; EDI with its searched c 19.44 dB (26.48 given both). At full
+// size (346 x 260, 30 px): 0.653, 31.30 dB against 31.33 given, where one c for both signs gave
 // 29.46.
 TEST(Benerf, WithoutThresholdsTheirRatioIsFound) {
   if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
@@ -2411,11 +2422,8 @@ TEST(PixelGrid, ShortEventWindowsAndARobustMidHoldThePixelsThresholdMismatch) {
   if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   const Observation obs = presetObservation("text", 30, 0.03);
   const nerf::PinholeCamera camera = obs.camera.withSize(120, 90);
-  const ExposureMotion m = motionFromLatentFrames(obs, camera, obs.contrast);
-  ASSERT_FALSE(m.poses.empty());
-  const Trajectory motion =
-      fitTrajectory(TrajectoryKind::kCubicSE3, 4, obs.blurry.exposure_start_us,
-                    obs.blurry.exposure_end_us, m.poses);
+  const auto registered = registeredMotion(obs, camera);
+  ASSERT_TRUE(registered);
   const DeblurRequest request{{obs.blurry.midExposure()}, {}};
   const cv::Mat edi = EdiDeblurrer{EdiOptions{}}.run(obs, request).frames[0].image;
   std::vector<double> psnrs;
@@ -2424,7 +2432,8 @@ TEST(PixelGrid, ShortEventWindowsAndARobustMidHoldThePixelsThresholdMismatch) {
     o.subdivision = 2;
     o.event_window = window;
     o.event_robust = robust;
-    PixelGridProblem problem(obs, camera, motion, m.inverse_depth, *obs.contrast, o);
+    PixelGridProblem problem(obs, camera, registered->motion, registered->inverse_depth,
+                             *obs.contrast, o);
     std::vector<double> x = problem.start(edi);
     problem.refineMotion(x, 6);
     problem.solve(x, 60);
