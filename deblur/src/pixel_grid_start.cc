@@ -432,7 +432,7 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
   };
   // c (out.c, out.correlation) from the levels: first in the log, then in linear intensity.
   const auto fitContrast = [&]() {
-    out.c = 0;
+    out.c = std::numeric_limits<double>::quiet_NaN();
     const Sums sums = regress(net, log_blurry, cv::Mat());
     if (sums.sab > 0) out.c = sums.saa / sums.sab;
     const double n = std::max(sums.n, 1.0);
@@ -504,7 +504,7 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
     const double before = out.ratio;
     ratioFromCounts(log_frame);
     if (!(out.ratio > 0)) {
-      out.c = 0;
+      out.c = std::numeric_limits<double>::quiet_NaN();
       return out;
     }
     fillLevels(out.ratio);
