@@ -430,6 +430,19 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
       net.at<double>(static_cast<int>(pixel / W), static_cast<int>(pixel % W)) = levels[kTimes - 1];
     }
   };
+  // EDI's frame at c over the exposure at one pixel, as its largest exponent c level_k (at least 0:
+  // level_0 = 0) and the trapezoid's mean of exp(c level_k - top) below it: no overflow however
+  // many events.
+  struct Exposed {
+    double top, mean;
+  };
+  const auto exposed = [&](const float* levels, double c) {
+    Exposed e{0.0, 0.0};
+    for (int k = 1; k < kTimes; ++k) e.top = std::max(e.top, c * levels[k]);
+    e.mean = benerf_detail::trapezoidMean(kTimes,
+                                          [&](int k) { return std::exp(c * levels[k] - e.top); });
+    return e;
+  };
   // c (out.c, out.correlation) from the levels: first in the log, then in linear intensity.
   const auto fitContrast = [&]() {
     out.c = std::numeric_limits<double>::quiet_NaN();
@@ -459,20 +472,15 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
     cv::Mat change(H, W, CV_64F);
     for (int round = 0; round < 8; ++round) {
       const double c = out.c;
-      // L_start (exp(c n) - 1) / c with L_start = B / mean_k exp(c level_k) (the trapezoid's mean),
-      // each exponent taken less the largest (level_0 = 0, so that one is at least 0): no overflow
-      // however many events.
+      // L_start (exp(c n) - 1) / c with L_start = B / mean_k exp(c level_k) (the trapezoid's mean).
 #pragma omp parallel for schedule(static)
       for (int y = 0; y < H; ++y)
         for (int x = 0; x < W; ++x) {
           const float* levels = &level[(static_cast<size_t>(y) * W + x) * kTimes];
-          double top = 0;
-          for (int k = 1; k < kTimes; ++k) top = std::max(top, c * levels[k]);
-          const double mean = benerf_detail::trapezoidMean(
-              kTimes, [&](int k) { return std::exp(c * levels[k] - top); });
+          const Exposed e = exposed(levels, c);
           const double end = c * levels[kTimes - 1];
           change.at<double>(y, x) =
-              linear.at<double>(y, x) * (std::exp(end - top) - std::exp(-top)) / (mean * c);
+              linear.at<double>(y, x) * (std::exp(end - e.top) - std::exp(-e.top)) / (e.mean * c);
         }
       const Sums l = regress(change, linear, linear);
       if (!(l.sab > 0)) break;
@@ -516,14 +524,10 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
     for (int y = 0; y < H; ++y)
       for (int x = 0; x < W; ++x) {
         const float* levels = &level[(static_cast<size_t>(y) * W + x) * kTimes];
-        double top = 0;
-        for (int k = 1; k < kTimes; ++k) top = std::max(top, c * levels[k]);
-        const double spread =
-            top +
-            std::log(benerf_detail::trapezoidMean(
-                kTimes, [&](int k) { return std::exp(c * levels[k] - top); })) -
+        const Exposed e = exposed(levels, c);
+        log_frame.at<double>(y, x) -=
+            e.top + std::log(e.mean) -
             c * benerf_detail::trapezoidMean(kTimes, [&](int k) { return double{levels[k]}; });
-        log_frame.at<double>(y, x) -= spread;
       }
   }
   return out;
