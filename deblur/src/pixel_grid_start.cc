@@ -436,12 +436,18 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
   struct Exposed {
     double top, mean;
   };
-  const auto exposed = [&](const float* levels, double c) {
-    Exposed e{0.0, 0.0};
-    for (int k = 1; k < kTimes; ++k) e.top = std::max(e.top, c * levels[k]);
-    e.mean = benerf_detail::trapezoidMean(kTimes,
-                                          [&](int k) { return std::exp(c * levels[k] - e.top); });
-    return e;
+  // f(y, x, the pixel's levels, its Exposed) at every pixel, the rows in parallel.
+  const auto eachPixelExposed = [&](double c, const auto& f) {
+#pragma omp parallel for schedule(static)
+    for (int y = 0; y < H; ++y)
+      for (int x = 0; x < W; ++x) {
+        const float* levels = &level[(static_cast<size_t>(y) * W + x) * kTimes];
+        Exposed e{0.0, 0.0};
+        for (int k = 1; k < kTimes; ++k) e.top = std::max(e.top, c * levels[k]);
+        e.mean = benerf_detail::trapezoidMean(
+            kTimes, [&](int k) { return std::exp(c * levels[k] - e.top); });
+        f(y, x, levels, e);
+      }
   };
   // c (out.c, out.correlation) from the levels: first in the log, then in linear intensity.
   const auto fitContrast = [&]() {
@@ -473,15 +479,11 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
     for (int round = 0; round < 8; ++round) {
       const double c = out.c;
       // L_start (exp(c n) - 1) / c with L_start = B / mean_k exp(c level_k) (the trapezoid's mean).
-#pragma omp parallel for schedule(static)
-      for (int y = 0; y < H; ++y)
-        for (int x = 0; x < W; ++x) {
-          const float* levels = &level[(static_cast<size_t>(y) * W + x) * kTimes];
-          const Exposed e = exposed(levels, c);
-          const double end = c * levels[kTimes - 1];
-          change.at<double>(y, x) =
-              linear.at<double>(y, x) * (std::exp(end - e.top) - std::exp(-e.top)) / (e.mean * c);
-        }
+      eachPixelExposed(c, [&](int y, int x, const float* levels, const Exposed& e) {
+        const double end = c * levels[kTimes - 1];
+        change.at<double>(y, x) =
+            linear.at<double>(y, x) * (std::exp(end - e.top) - std::exp(-e.top)) / (e.mean * c);
+      });
       const Sums l = regress(change, linear, linear);
       if (!(l.sab > 0)) break;
       out.c = l.saa / l.sab;
@@ -520,15 +522,11 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
     if (!(out.c > 0) || out.ratio == 1.0 || std::abs(out.ratio / before - 1) < 1e-3) break;
     log_frame = log_blurry.clone();
     const double c = out.c;
-#pragma omp parallel for schedule(static)
-    for (int y = 0; y < H; ++y)
-      for (int x = 0; x < W; ++x) {
-        const float* levels = &level[(static_cast<size_t>(y) * W + x) * kTimes];
-        const Exposed e = exposed(levels, c);
-        log_frame.at<double>(y, x) -=
-            e.top + std::log(e.mean) -
-            c * benerf_detail::trapezoidMean(kTimes, [&](int k) { return double{levels[k]}; });
-      }
+    eachPixelExposed(c, [&](int y, int x, const float* levels, const Exposed& e) {
+      log_frame.at<double>(y, x) -=
+          e.top + std::log(e.mean) -
+          c * benerf_detail::trapezoidMean(kTimes, [&](int k) { return double{levels[k]}; });
+    });
   }
   return out;
 }
