@@ -449,6 +449,11 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
         f(y, x, levels, e);
       }
   };
+  // The blurry frame in linear intensity, and EDI's change over the exposure at each pixel (c's
+  // fixed point below), made once for every round of the ratio.
+  cv::Mat linear(H, W, CV_64F), change(H, W, CV_64F);
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) linear.at<double>(y, x) = std::exp(log_blurry.at<double>(y, x));
   // c (out.c, out.correlation) from the levels: first in the log, then in linear intensity.
   const auto fitContrast = [&]() {
     out.c = std::numeric_limits<double>::quiet_NaN();
@@ -472,10 +477,6 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
     // the log: where bright content smears into dark (stars behind a rocket) the log's c came out
     // at 0.29-0.30 for the truth's 0.2, along the true motion too (0.21 and 0.19 from the blur of
     // the true frame's log), and the fixed point at 0.22.
-    cv::Mat linear(H, W, CV_64F);
-    for (int y = 0; y < H; ++y)
-      for (int x = 0; x < W; ++x) linear.at<double>(y, x) = std::exp(log_blurry.at<double>(y, x));
-    cv::Mat change(H, W, CV_64F);
     for (int round = 0; round < 8; ++round) {
       const double c = out.c;
       // L_start (exp(c n) - 1) / c with L_start = B / mean_k exp(c level_k) (the trapezoid's mean).
@@ -508,7 +509,7 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
   // thresholds apart, and there is nothing to correct: the gaps come from a c that such counts do
   // not tell either (the standard suite's rgbd_blur15, smooth shading, counts' c 0.35 for 0.2: its
   // gaps at that c moved the bounds from 0.64-5.7 to 1.04-4.5 and the ratio from 1 to 2.16).
-  cv::Mat log_frame = log_blurry;
+  cv::Mat log_frame = log_blurry, corrected;
   out.ratio = std::numeric_limits<double>::quiet_NaN();
   for (int round = 0; round < 4; ++round) {
     const double before = out.ratio;
@@ -520,13 +521,15 @@ CountedContrast contrastFromCounts(const Observation& obs, const PinholeCamera& 
     fillLevels(out.ratio);
     fitContrast();
     if (!(out.c > 0) || out.ratio == 1.0 || std::abs(out.ratio / before - 1) < 1e-3) break;
-    log_frame = log_blurry.clone();
+    corrected.create(H, W, CV_64F);
     const double c = out.c;
     eachPixelExposed(c, [&](int y, int x, const float* levels, const Exposed& e) {
-      log_frame.at<double>(y, x) -=
-          e.top + std::log(e.mean) -
-          c * benerf_detail::trapezoidMean(kTimes, [&](int k) { return double{levels[k]}; });
+      corrected.at<double>(y, x) =
+          log_blurry.at<double>(y, x) -
+          (e.top + std::log(e.mean) -
+           c * benerf_detail::trapezoidMean(kTimes, [&](int k) { return double{levels[k]}; }));
     });
+    log_frame = corrected;
   }
   return out;
 }
