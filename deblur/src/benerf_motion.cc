@@ -266,14 +266,17 @@ double percentileOf(std::vector<double> values, int percent) {
 // alternation of motions and depths leaves it near its start, where the translation takes part
 // of the rotation. The offsets that put the farthest tracks (5th percentile) at 0, 0.2, ..., 1 of
 // the nearest's inverse depth are each scored by the tracks' residual, and a parabola through the
-// least and its neighbours refines it; the motions and depths of the least residual are kept (the
-// fitted ones where none is lower), at the scale again. Each candidate's depths are fitted once
-// more through its own motions before its motions are fitted again and scored: the depths came
-// from the alternation at the start's offset, where their shape took up the perspective terms
-// of the rotation that offset left out, and held fixed they scored every offset against the
-// start's, whose residual they favoured (the farthest tracks' inverse depth chosen at 0.30-0.61
-// of the nearest's for the truth's 0.20-0.49 on six natural scenes, the rotation short by 5-20%;
-// BENCHMARKS.md, "The depths' common offset").
+// least and its neighbours refines it. Each candidate's depths are fitted once more through its
+// own motions, and its motions again through them, before it is scored: the depths came from the
+// alternation at the start's offset, where their shape took up the perspective terms of the
+// rotation that offset left out, and held fixed they scored every offset against the start's,
+// whose residual they favoured (the farthest tracks' inverse depth chosen at 0.30-0.61 of the
+// nearest's for the truth's 0.20-0.49 on six natural scenes, the rotation short by 5-20%;
+// BENCHMARKS.md, "Each candidate offset's own depths"). Where the least is below the start's
+// residual, what is kept at its offset is the start's depths moved by it and the motions refitted
+// through them, as the registration's misfit bar was set on: kept with its own depths, that one more
+// round of the depths took 10% off the misfit of two registrations that had locked onto repeated
+// texture (8 px off the truth), which then passed the bar.
 void chooseDepthOffset(const PinholeCamera& camera, const std::vector<Track>& tracks, int times,
                        int mid, double ridge, const DepthModel& model,
                        const std::vector<int>& support, RigidFit& f, Eigen::VectorXd& w) {
@@ -287,23 +290,29 @@ void chooseDepthOffset(const PinholeCamera& camera, const std::vector<Track>& tr
                 trial.p[static_cast<size_t>(k)]);
     }
   };
-  const auto refit = [&](double c, RigidFit& trial) {
+  // The start's fit with every inverse depth moved by c and the motions refitted.
+  const auto moved = [&](double c, RigidFit& trial) {
     trial = f;
-    trial.w = w;
-    if (model.per_tile)
-      trial.w.array() += c;
-    else
-      trial.w[0] += c;
     for (double& r : trial.rho) r = std::max(r + c, 0.0);
     fitTimes(trial);
-    fitDepth(camera, tracks, model, trial.theta, trial.p, support, trial.w);
+  };
+  // A candidate's residual through its own depths.
+  const auto score = [&](double c) {
+    RigidFit trial;
+    moved(c, trial);
+    Eigen::VectorXd trial_w = w;
+    if (model.per_tile)
+      trial_w.array() += c;
+    else
+      trial_w[0] += c;
+    fitDepth(camera, tracks, model, trial.theta, trial.p, support, trial_w);
     // The bounds of fitRigid's depths, at the offset's scale.
     const double scale = (nearest + c) / nearest;
     std::vector<std::pair<int, double>> phi;
     for (size_t i = 0; i < tracks.size(); ++i) {
       model.basis(tracks[i], phi);
       double rho = 0;
-      for (const auto& [j, v] : phi) rho += v * trial.w[j];
+      for (const auto& [j, v] : phi) rho += v * trial_w[j];
       trial.rho[i] = std::clamp(rho, 0.0, scale * trial.nearest(tracks[i]));
     }
     fitTimes(trial);
@@ -312,36 +321,27 @@ void chooseDepthOffset(const PinholeCamera& camera, const std::vector<Track>& tr
   constexpr int kSteps = 5;
   const double step = nearest / kSteps;
   std::vector<double> residuals;
-  RigidFit trial, best_fit;
-  double best_residual = rmsResidual(camera, tracks, f.rho, f.theta, f.p);
-  bool moved = false;
-  // Keeps the trial where its residual is the least so far.
-  const auto consider = [&](double residual) {
-    if (!(residual < best_residual)) return;
-    best_residual = residual;
-    best_fit = trial;
-    moved = true;
-  };
   size_t least = 0;
   for (int q = 0; q <= kSteps; ++q) {
-    residuals.push_back(refit(q * step - farthest, trial));
+    residuals.push_back(score(q * step - farthest));
     if (residuals.back() < residuals[least]) least = residuals.size() - 1;
-    consider(residuals.back());
   }
+  double best = static_cast<double>(least) * step - farthest, best_residual = residuals[least];
   if (least > 0 && least + 1 < residuals.size()) {
     const double a = residuals[least - 1], b = residuals[least], d = residuals[least + 1];
     const double curvature = a - 2 * b + d;
     if (curvature > 0) {
-      const double c =
-          static_cast<double>(least) * step - farthest + 0.5 * step * (a - d) / curvature;
-      consider(refit(c, trial));
+      const double c = best + 0.5 * step * (a - d) / curvature, at_c = score(c);
+      if (at_c < b) best = c, best_residual = at_c;
     }
   }
-  const double best_nearest = moved ? percentileOf(best_fit.rho, 95) : 0.0;
-  if (!(best_nearest > 0)) return;
-  f = std::move(best_fit);
-  w = f.w;
-  const double scale = (1 / 1.5) / best_nearest;
+  if (!(best_residual < rmsResidual(camera, tracks, f.rho, f.theta, f.p))) return;
+  moved(best, f);
+  if (model.per_tile)
+    w.array() += best;
+  else
+    w[0] += best;
+  const double scale = (1 / 1.5) / (nearest + best);
   w *= scale;
   for (size_t i = 0; i < f.rho.size(); ++i)
     f.rho[i] = std::clamp(f.rho[i] * scale, 0.0, f.nearest(tracks[i]));
