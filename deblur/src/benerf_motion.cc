@@ -274,9 +274,9 @@ double percentileOf(std::vector<double> values, int percent) {
 // nearest's for the truth's 0.20-0.49 on six natural scenes, the rotation short by 5-20%;
 // BENCHMARKS.md, "Each candidate offset's own depths"). Where the least is below the start's
 // residual, what is kept at its offset is the start's depths moved by it and the motions refitted
-// through them, as the registration's misfit bar was set on: kept with its own depths, that one more
-// round of the depths took 10% off the misfit of two registrations that had locked onto repeated
-// texture (8 px off the truth), which then passed the bar.
+// through them, as the registration's misfit bar was set on: kept with its own depths, that one
+// more round of the depths took 10% off the misfit of two registrations that had locked onto
+// repeated texture (8 px off the truth), which then passed the bar.
 void chooseDepthOffset(const PinholeCamera& camera, const std::vector<Track>& tracks, int times,
                        int mid, double ridge, const DepthModel& model,
                        const std::vector<int>& support, RigidFit& f, Eigen::VectorXd& w) {

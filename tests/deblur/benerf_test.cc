@@ -548,10 +548,10 @@ TEST(Benerf, RepeatedTextureIsTheFlowsRepeatWithinItsReach) {
 // the image nearly alike, so the registration chooses it by the tracks' residual
 // (chooseDepthOffset) instead of leaving it where its start put it, each candidate's depths fitted
 // again through its own motions: the backdrop's registered inverse depth against the rocket's (the
-// truth's ratio 0.2), mean under 0.42 (measured 0.34 and 0.39; with the depths of the start's offset
-// held 0.43 and 0.52, without the choice 0.50 and 0.58), and the rotation over the exposure (3.2
-// degrees) within 0.6 degrees of the truth on average (measured 0.45 and 0.51; with the start's
-// depths held 0.70 and 0.99, without the choice 0.93 and 1.33).
+// truth's ratio 0.2), mean under 0.42 (measured 0.34 and 0.39; with the depths of the start's
+// offset held 0.43 and 0.52, without the choice 0.50 and 0.58), and the rotation over the exposure
+// (3.2 degrees) within 0.6 degrees of the truth on average (measured 0.45 and 0.51; with the
+// start's depths held 0.70 and 0.99, without the choice 0.93 and 1.33).
 TEST(Benerf, TheRegisteredDepthsFollowTheNearLayerAndTheirOffsetTheFlows) {
   if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   double near_error = 0, ratio = 0, rotation_error = 0;
