@@ -162,6 +162,15 @@ struct DepthModel {
       out.emplace_back(2, tr.bearing.y() / tr.bearing.z());
     }
   }
+  // A track's inverse depth under the weights w; phi: basis's scratch, holding the track's basis
+  // after the call.
+  double inverseDepth(const Track& tr, const Eigen::VectorXd& w,
+                      std::vector<std::pair<int, double>>& phi) const {
+    basis(tr, phi);
+    double rho = 0;
+    for (const auto& [j, v] : phi) rho += v * w[j];
+    return rho;
+  }
 };
 
 // The depth model's weights given every time's motion, by Gauss-Newton on the linear model;
@@ -188,9 +197,7 @@ void fitDepth(const PinholeCamera& camera, const std::vector<Track>& tracks,
                    end = tracks.size() * (piece + 1) / kPieces;
       for (size_t i = begin; i < end; ++i) {
         const Track& tr = tracks[i];
-        model.basis(tr, phi);
-        double rho = 0;
-        for (const auto& [j, v] : phi) rho += v * w[j];
+        const double rho = model.inverseDepth(tr, w, phi);
         for (size_t k = 0; k < theta.size(); ++k) {
           const Eigen::Vector2d& q = tr.seen[k];
           if (!std::isfinite(q.x())) continue;
@@ -309,12 +316,9 @@ void chooseDepthOffset(const PinholeCamera& camera, const std::vector<Track>& tr
     // The bounds of fitRigid's depths, at the offset's scale.
     const double scale = (nearest + c) / nearest;
     std::vector<std::pair<int, double>> phi;
-    for (size_t i = 0; i < tracks.size(); ++i) {
-      model.basis(tracks[i], phi);
-      double rho = 0;
-      for (const auto& [j, v] : phi) rho += v * trial_w[j];
-      trial.rho[i] = std::clamp(rho, 0.0, scale * trial.nearest(tracks[i]));
-    }
+    for (size_t i = 0; i < tracks.size(); ++i)
+      trial.rho[i] = std::clamp(model.inverseDepth(tracks[i], trial_w, phi), 0.0,
+                                scale * trial.nearest(tracks[i]));
     fitTimes(trial);
     return rmsResidual(camera, tracks, trial.rho, trial.theta, trial.p);
   };
@@ -421,11 +425,7 @@ RigidFit fitRigid(const PinholeCamera& camera, const std::vector<Track>& tracks,
                 f.p[static_cast<size_t>(k)]);
     }
     fitDepth(camera, tracks, *model, f.theta, f.p, support, w);
-    for (size_t i = 0; i < tracks.size(); ++i) {
-      model->basis(tracks[i], phi);
-      f.rho[i] = 0;
-      for (const auto& [j, v] : phi) f.rho[i] += v * w[j];
-    }
+    for (size_t i = 0; i < tracks.size(); ++i) f.rho[i] = model->inverseDepth(tracks[i], w, phi);
     const double nearest = percentileOf(f.rho, 95);
     if (!(nearest > 0)) break;
     const double scale = (1 / 1.5) / nearest;
