@@ -1143,7 +1143,9 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
     }
     return c;
   };
-  Chosen chosen = chooseFrom(tiles, std::nullopt, false);
+  // Where the offset is to be settled (below), the near sides' alternative waits for it.
+  const bool settle = m.depth && tiles_explain && choose_offset && depths == Depths::kPixels;
+  Chosen chosen = chooseFrom(tiles, std::nullopt, choose_offset && !settle);
   m.inverse_depth = chosen.inverse_depth;
   m.pixel_depth = chosen.pixel_depth;
   m.residual_pixels_px = chosen.residual_pixels_px;
@@ -1181,7 +1183,7 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
   // the scan's offset, under the bar once settled). Not for the lens ladder's candidates, scored by
   // the tiles' misfit alone, nor the scored registrations that leave the offset unchosen; the near
   // sides' alternative, for a registration that feeds a trajectory, from the offset settled.
-  if (m.depth && tiles_explain && choose_offset && depths == Depths::kPixels) {
+  if (settle) {
     RigidFit settled = tiles;
     settleJointly(camera, tracks, times, mid, tile_model, settled);
     chosen = chooseFrom(settled, chosen.pixel_depth, true);
