@@ -105,6 +105,9 @@ constexpr double kNearestScale = 1 / 1.05, kNearestSeen = 10, kSeenEachSide = 0.
 
 double huberWeight(double r) { return r <= kHuberPx ? 1.0 : kHuberPx / r; }
 
+// The Huber cost of a residual of r px, whose Gauss-Newton weight is huberWeight.
+double huberCost(double r) { return r <= kHuberPx ? r * r : kHuberPx * (2 * r - kHuberPx); }
+
 // The tile of pixel (x, y) in a W x H image cut into tiles_x x tiles_y tiles, row-major.
 int tileOf(int x, int y, int W, int H, int tiles_x, int tiles_y) {
   return std::min(tiles_y - 1, y * tiles_y / H) * tiles_x + std::min(tiles_x - 1, x * tiles_x / W);
@@ -418,7 +421,7 @@ void bundleAdjust(const PinholeCamera& camera, const std::vector<Track>& tracks,
         if (!std::isfinite(q.x())) continue;
         const double r =
             (predict(camera, tracks[i].bearing, fit.rho[i], Rt[k], fit.p[k]) - q).norm();
-        e += r <= kHuberPx ? r * r : kHuberPx * (2 * r - kHuberPx);
+        e += huberCost(r);
       }
     }
     for (const Vector3& p : fit.p) e += ridge * p.squaredNorm();
@@ -803,7 +806,7 @@ OwnDepths ownInverseDepths(const PinholeCamera& camera, const std::vector<cv::Ma
           const Eigen::Vector2d q(x + f.x, y + f.y);
           const Eigen::Vector2d at = nerf::projectPoint(camera, Rt[i] * (b - r * p[i]));
           const double n = (at - q).norm();
-          e += n <= kHuberPx ? n * n : kHuberPx * (2 * n - kHuberPx);
+          e += huberCost(n);
           if (!h) continue;
           const Eigen::Vector2d J =
               (nerf::projectPoint(camera, Rt[i] * (b - (r + 1e-5) * p[i])) - at) / 1e-5;
