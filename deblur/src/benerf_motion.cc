@@ -199,8 +199,9 @@ struct DepthModel {
   }
 };
 
-// The depth model's weights given every time's motion, by Gauss-Newton on the linear model;
-// per-tile unknowns without enough tracks keep their value.
+// The depth model's weights given every time's motion, by Gauss-Newton on the linear model (the
+// terms: seenPoint's, by the inverse depth); per-tile unknowns without enough tracks keep their
+// value.
 void fitDepth(const PinholeCamera& camera, const std::vector<Track>& tracks,
               const DepthModel& model, const std::vector<Vector3>& theta,
               const std::vector<Vector3>& p, const std::vector<int>& support, Eigen::VectorXd& w) {
@@ -227,9 +228,9 @@ void fitDepth(const PinholeCamera& camera, const std::vector<Track>& tracks,
         for (size_t k = 0; k < theta.size(); ++k) {
           const Eigen::Vector2d& q = tr.seen[k];
           if (!std::isfinite(q.x())) continue;
-          const Eigen::Vector2d r0 = predict(camera, tr.bearing, rho, Rt[k], p[k]) - q;
-          const Eigen::Vector2d J =
-              (predict(camera, tr.bearing, rho + 1e-5, Rt[k], p[k]) - r0 - q) / 1e-5;
+          const benerf_detail::SeenPoint seen = seenPoint(camera, tr.bearing, rho, Rt[k], p[k]);
+          const Eigen::Vector2d r0 = seen.at - q;
+          const Eigen::Vector2d& J = seen.by_inverse_depth;
           const double wt = huberWeight(r0.norm());
           for (const auto& [a, va] : phi) {
             g[a] += wt * va * J.dot(r0);
@@ -286,6 +287,19 @@ struct RigidFit {
   }
 };
 
+// Every time's motion but mid-exposure's (the reference), each fitted on its own through f.rho
+// (fitTime): each time its own figures, whatever the thread count.
+void fitTimes(const PinholeCamera& camera, const std::vector<Track>& tracks, int mid,
+              bool translate, double ridge, RigidFit& f) {
+  const int times = static_cast<int>(f.theta.size());
+#pragma omp parallel for schedule(dynamic)
+  for (int k = 0; k < times; ++k) {
+    if (k != mid)
+      fitTime(camera, tracks, f.rho, k, translate, ridge, f.theta[static_cast<size_t>(k)],
+              f.p[static_cast<size_t>(k)]);
+  }
+}
+
 // The value at `percent` of a copy of `values` (nth_element's order statistic).
 double percentileOf(std::vector<double> values, int percent) {
   const auto at = values.begin() + static_cast<std::ptrdiff_t>(values.size() * percent / 100);
@@ -335,24 +349,16 @@ bool holdScale(const std::vector<Track>& tracks, RigidFit& f, Eigen::VectorXd& w
 // through them, as the registration's misfit bar was set on: kept with its own depths, that one
 // more round of the depths took 10% off the misfit of two registrations that had locked onto
 // repeated texture (8 px off the truth), which then passed the bar.
-void chooseDepthOffset(const PinholeCamera& camera, const std::vector<Track>& tracks, int times,
-                       int mid, double ridge, const DepthModel& model,
-                       const std::vector<int>& support, RigidFit& f, Eigen::VectorXd& w) {
+void chooseDepthOffset(const PinholeCamera& camera, const std::vector<Track>& tracks, int mid,
+                       double ridge, const DepthModel& model, const std::vector<int>& support,
+                       RigidFit& f, Eigen::VectorXd& w) {
   const double farthest = percentileOf(f.rho, 5), nearest = percentileOf(f.rho, 95);
   if (!(nearest > farthest)) return;
-  const auto fitTimes = [&](RigidFit& trial) {
-#pragma omp parallel for schedule(dynamic)
-    for (int k = 0; k < times; ++k) {
-      if (k != mid)
-        fitTime(camera, tracks, trial.rho, k, true, ridge, trial.theta[static_cast<size_t>(k)],
-                trial.p[static_cast<size_t>(k)]);
-    }
-  };
   // The start's fit with every inverse depth moved by c and the motions refitted.
   const auto moved = [&](double c, RigidFit& trial) {
     trial = f;
     for (double& r : trial.rho) r = std::max(r + c, 0.0);
-    fitTimes(trial);
+    fitTimes(camera, tracks, mid, true, ridge, trial);
   };
   // A candidate's residual through its own depths.
   const auto score = [&](double c) {
@@ -370,7 +376,7 @@ void chooseDepthOffset(const PinholeCamera& camera, const std::vector<Track>& tr
     for (size_t i = 0; i < tracks.size(); ++i)
       trial.rho[i] = std::clamp(model.inverseDepth(tracks[i], trial_w, phi), 0.0,
                                 scale * trial.nearest(tracks[i]));
-    fitTimes(trial);
+    fitTimes(camera, tracks, mid, true, ridge, trial);
     return rmsResidual(camera, tracks, trial.rho, trial.theta, trial.p);
   };
   constexpr int kSteps = 5;
@@ -526,12 +532,7 @@ void settleJointly(const PinholeCamera& camera, const std::vector<Track>& tracks
   for (size_t i = 0; i < tracks.size(); ++i)
     f.rho[i] = std::clamp(model.inverseDepth(tracks[i], w, phi), 0.0, f.nearest(tracks[i]));
   holdScale(tracks, f, w);
-#pragma omp parallel for schedule(dynamic)
-  for (int k = 0; k < times; ++k) {
-    if (k != mid)
-      fitTime(camera, tracks, f.rho, k, true, ridge, f.theta[static_cast<size_t>(k)],
-              f.p[static_cast<size_t>(k)]);
-  }
+  fitTimes(camera, tracks, mid, true, ridge, f);
   keepWeights(camera, tracks, support, w, f);
 }
 
@@ -577,14 +578,8 @@ RigidFit fitRigid(const PinholeCamera& camera, const std::vector<Track>& tracks,
   f.p.assign(static_cast<size_t>(times), Vector3::Zero());
   f.rho.assign(tracks.size(), model ? 1 / 1.5 : 0.0);
   if (model && model->per_tile) f.tile_nearest = tileNearest(tracks, model->tiles);
-  // The times are fitted independently (each its own figures, whatever the thread count).
   if (!model) {
-#pragma omp parallel for schedule(dynamic)
-    for (int k = 0; k < times; ++k) {
-      if (k != mid)
-        fitTime(camera, tracks, f.rho, k, false, 0, f.theta[static_cast<size_t>(k)],
-                f.p[static_cast<size_t>(k)]);
-    }
+    fitTimes(camera, tracks, mid, false, 0, f);
     f.residual_px = rmsResidual(camera, tracks, f.rho, f.theta, f.p);
     return f;
   }
@@ -597,17 +592,12 @@ RigidFit fitRigid(const PinholeCamera& camera, const std::vector<Track>& tracks,
     w[0] = 1 / 1.5;
   const double ridge = translationRidge(camera, tracks);
   for (int round = 0; round < 6; ++round) {
-#pragma omp parallel for schedule(dynamic)
-    for (int k = 0; k < times; ++k) {
-      if (k != mid)
-        fitTime(camera, tracks, f.rho, k, true, ridge, f.theta[static_cast<size_t>(k)],
-                f.p[static_cast<size_t>(k)]);
-    }
+    fitTimes(camera, tracks, mid, true, ridge, f);
     fitDepth(camera, tracks, *model, f.theta, f.p, support, w);
     for (size_t i = 0; i < tracks.size(); ++i) f.rho[i] = model->inverseDepth(tracks[i], w, phi);
     if (!holdScale(tracks, f, w)) break;
   }
-  if (choose_offset) chooseDepthOffset(camera, tracks, times, mid, ridge, *model, support, f, w);
+  if (choose_offset) chooseDepthOffset(camera, tracks, mid, ridge, *model, support, f, w);
   keepWeights(camera, tracks, support, w, f);
   return f;
 }
@@ -1121,12 +1111,7 @@ ExposureMotion fitMotion(const PinholeCamera& camera, TrackedPoints& points, boo
         for (size_t i = 0; i < tracks.size(); ++i)
           pixels.rho[i] = map.at<float>(static_cast<int>(tracks[i].pixel.y()),
                                         static_cast<int>(tracks[i].pixel.x()));
-#pragma omp parallel for schedule(dynamic)
-        for (int k = 0; k < times; ++k) {
-          if (k != mid)
-            fitTime(camera, tracks, pixels.rho, k, true, ridge,
-                    pixels.theta[static_cast<size_t>(k)], pixels.p[static_cast<size_t>(k)]);
-        }
+        fitTimes(camera, tracks, mid, true, ridge, pixels);
       }
       pixels.residual_px = rmsResidual(camera, tracks, pixels.rho, pixels.theta, pixels.p);
       return pixels;
