@@ -82,7 +82,9 @@ cv::Mat EdiModel::latent(const cv::Mat& blurry, int64_t t_us, double c_on, doubl
       double gain = 1.0;
       bool masked = g[x] <= options.black;
       for (int c = 0; c < channels; ++c) masked |= b[x * channels + c] >= options.saturated;
-      if (!masked && events_.count(p) > 0) {
+      if (!masked && events_.count(p) > 0 && options.levels == EdiOptions::Levels::kLinear) {
+        gain = linearGain(p, t_us, c_on, c_off);
+      } else if (!masked && events_.count(p) > 0) {
         // Level at t: the events of this pixel up to t.
         int32_t on_f = 0, off_f = 0;
         for (uint32_t e = events_.begin(p); e < events_.end(p) && events_.t()[e] <= t_us; ++e) {
@@ -103,6 +105,75 @@ cv::Mat EdiModel::latent(const cv::Mat& blurry, int64_t t_us, double c_on, doubl
     }
   }
   return out;
+}
+
+// The knots of a pixel's log level with EdiOptions::Levels::kLinear, relative to its level at the
+// window's start as the steps count it. At each event the log intensity has just crossed the
+// sensor's next level, so the level there is exact; between two events of one sign it rose (or
+// fell) from one to the next, taken as straight; between events of opposite signs it turned
+// somewhere unseen, so it holds until the second. Before the first event and after the last, the
+// log intensity lies within a threshold of that event's level, on the side it came from and on
+// the side it went to: with the sensor's reference at an unknown phase (a real sensor has been
+// firing before the exposure), half a threshold is its expected offset, reached at the pace of
+// the two events beside it where they agree in sign, else at once.
+void EdiModel::linearKnots(size_t p, double c_on, double c_off,
+                           std::vector<std::pair<double, double>>& knots) const {
+  const std::vector<int64_t>& ev_t = events_.t();
+  const std::vector<int8_t>& ev_p = events_.polarity();
+  const uint32_t first = events_.begin(p), last = events_.end(p);
+  const auto step = [&](uint32_t e) { return ev_p[e] > 0 ? c_on : -c_off; };
+  const auto time = [&](uint32_t e) { return static_cast<double>(ev_t[e]); };
+  // The half interval beside the run's end event `e` (the neighbour `n`), 0 where none.
+  const auto halfPace = [&](uint32_t e, uint32_t n) {
+    return (step(e) > 0) == (step(n) > 0) ? 0.5 * std::abs(time(e) - time(n)) : 0.0;
+  };
+  knots.clear();
+  knots.emplace_back(time(first) - (last - first >= 2 ? halfPace(first, first + 1) : 0.0),
+                     0.5 * step(first));
+  double level = 0;
+  for (uint32_t e = first; e < last; ++e) {
+    if (e > first && (step(e) > 0) != (step(e - 1) > 0)) knots.emplace_back(time(e), level);
+    level += step(e);
+    knots.emplace_back(time(e), level);
+  }
+  knots.emplace_back(time(last - 1) + (last - first >= 2 ? halfPace(last - 1, last - 2) : 0.0),
+                     level + 0.5 * step(last - 1));
+}
+
+double EdiModel::linearGain(size_t p, int64_t t_us, double c_on, double c_off) const {
+  thread_local std::vector<std::pair<double, double>> knots;
+  linearKnots(p, c_on, c_off, knots);
+  // The level at t: straight between knots, constant beyond them; at a jump, the level after it
+  // (the events at t count, as with the steps).
+  const double t = static_cast<double>(t_us);
+  size_t k = 0;
+  while (k + 1 < knots.size() && knots[k + 1].first <= t) ++k;
+  double level_t = knots[k].second;
+  if (k + 1 < knots.size() && knots[k].first <= t) {
+    const auto& [ta, la] = knots[k];
+    const auto& [tb, lb] = knots[k + 1];
+    level_t = la + (lb - la) * (t - ta) / (tb - ta);  // tb > t >= ta
+  }
+  // (1/T) integral over the window of exp(l(s) - l(t)): exact on each straight piece.
+  const double begin = static_cast<double>(t_begin_), end = static_cast<double>(t_end_);
+  const auto relative = [&](double l) {
+    return std::exp(std::clamp(l - level_t, -kMaxExponent, kMaxExponent));
+  };
+  double integral = 0, from_t = begin, from_level = knots.front().second;
+  for (const auto& [to_t, to_level] : knots) {
+    const double a = std::clamp(from_t, begin, end), b = std::clamp(to_t, begin, end);
+    if (b > a) {
+      const double slope = (to_level - from_level) / (to_t - from_t);
+      const double la = from_level + slope * (a - from_t), d = slope * (b - a);
+      integral += (b - a) * relative(la) * (std::abs(d) > 1e-9 ? std::expm1(d) / d : 1.0);
+    }
+    from_t = to_t;
+    from_level = to_level;
+  }
+  if (end > std::max(from_t, begin))
+    integral += (end - std::max(from_t, begin)) * relative(from_level);
+  integral /= end - begin;
+  return integral > 0 && std::isfinite(integral) ? 1.0 / integral : 1.0;
 }
 
 // Energy of the latent frame at t: the normalised sparsity ||grad L||_1 / ||grad L||_2 of its
@@ -215,8 +286,11 @@ const SettingsTable<EdiOptions>& ediSettings() {
                  [](const O& o) { return std::string(o.use_observation_contrast ? "0" : "1"); }})
         .number("c_min", &O::search_min, {0, INFINITY, true}, "lowest c of the search")
         .number("c_max", &O::search_max, {0, INFINITY, true}, "highest c of the search")
-        .integer("margin_us", &O::margin_us, {0},
-                 "widen the integration window on both sides (µs)");
+        .integer("margin_us", &O::margin_us, {0}, "widen the integration window on both sides (µs)")
+        .choice("levels", &O::levels,
+                {{"steps", O::Levels::kSteps}, {"linear", O::Levels::kLinear}},
+                "each pixel's log level between its events: held since the last (the published "
+                "EDI) or straight from one event's level to the next");
     return t;
   }();
   return table;

@@ -69,11 +69,13 @@ Observation supportedEvents(const Observation& obs, double support_px, double bl
   return out;
 }
 
-// EDI's mid-exposure frame with thresholds c.
+// EDI's mid-exposure frame with thresholds c, each pixel's level straight between its events
+// (EdiOptions::Levels::kLinear; BENCHMARKS.md, "EDI's levels between events").
 cv::Mat ediMidFrame(const Observation& obs, const Contrast& c) {
   EdiOptions edi_options;
   edi_options.use_observation_contrast = false;
   edi_options.contrast = c;
+  edi_options.levels = EdiOptions::Levels::kLinear;
   DeblurRequest request;
   request.times_us = {obs.blurry.midExposure()};
   return EdiDeblurrer{edi_options}.run(obs, request).frames.front().image;

@@ -19,7 +19,8 @@ namespace evkit::benerf_detail {
 Observation supportedEvents(const Observation& obs, double support_px, double blur_px,
                             DeblurResult& result);
 
-// EDI's mid-exposure frame with thresholds c.
+// EDI's mid-exposure frame with thresholds c, each pixel's level straight between its events
+// (EdiOptions::Levels::kLinear; BENCHMARKS.md, "EDI's levels between events").
 cv::Mat ediMidFrame(const Observation& obs, const Contrast& c);
 
 // The share of deblurring's change (StartFit) from which the grid's misfit at the start keeps it:

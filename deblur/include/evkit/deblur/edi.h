@@ -8,7 +8,9 @@
 // thresholds the level is c_on n_on - c_off n_off. The same per-pixel gain multiplies every colour
 // channel. Saturated and black pixels (B outside [black, saturated]) keep B. c comes from the
 // settings, the observation's contrast.txt, or a 1-D search minimising a sharpness energy of the
-// latent frame at mid-exposure (see EdiModel::searchContrast).
+// latent frame at mid-exposure (see EdiModel::searchContrast). With `levels=linear` the level runs
+// straight from each event's level to the next instead of holding between them (the integral stays
+// exact, piece by piece): the steps sit up to a threshold behind the log intensity that fired them.
 #pragma once
 
 #include <opencv2/core.hpp>
@@ -28,6 +30,10 @@ struct EdiOptions {
   int search_grid = 21;                               // coarse grid, then golden-section refinement
   double saturated = Frame::kClipped, black = 0.005;  // masks (linear intensity)
   int64_t margin_us = 0;                              // widen the integration window on both sides
+  // How each pixel's log level runs between its events: kSteps holds the level since the last
+  // event (the published EDI); kLinear passes through each event's level at its time, straight
+  // between events, and half a threshold beyond the first and the last (EdiModel::linearKnots).
+  enum class Levels { kSteps, kLinear } levels = Levels::kSteps;
 
   // Throws evkit::Error naming the first setting out of its range.
   void check() const;
@@ -65,6 +71,11 @@ class EdiModel {
   };
   int width_, height_;
   int64_t t_begin_, t_end_;
+  // The (time, level) knots of pixel p's log level with the linear levels (it has events).
+  void linearKnots(size_t p, double c_on, double c_off,
+                   std::vector<std::pair<double, double>>& knots) const;
+  // Pixel p's gain at t with the linear levels: 1 / ((1/T) integral exp(l(s) - l(t)) ds).
+  double linearGain(size_t p, int64_t t_us, double c_on, double c_off) const;
   std::vector<uint32_t> seg_first_;  // pixel p: segments_[seg_first_[p] .. seg_first_[p+1])
   std::vector<Segment> segments_;
   PixelEventIndex events_;  // the exposure's events by pixel
