@@ -66,15 +66,21 @@ TEST(Edi, ContrastSearchRecoversTheSimulatorThresholdWithinTwentyPercent) {
   EXPECT_NEAR(r.parameters.at("contrast_on"), 0.2, 0.2 * 0.2);
 }
 
-// One pixel, hand-computed: exposure [0, 1000], ON events at 200 and 600, C = 0.5.
-// Levels: 0 on [0,200), 1 on [200,600), 2 on [600,1000]. (1/T) int exp(c E) = 0.2 + 0.4 e^0.5 + 0.4
-// e^1.
-TEST(Edi, ExactSumOverTheStepFunctionOfOnePixel) {
+// Two grey pixels (0.5) exposed over [0, 1000] µs, without events yet.
+Observation twoGreyPixels() {
   Observation obs;
   obs.blurry.image = cv::Mat(1, 2, CV_32F, cv::Scalar(0.5));
   obs.blurry.exposure_start_us = 0;
   obs.blurry.exposure_end_us = 1000;
   obs.events.setSensor(SensorSize{2, 1});
+  return obs;
+}
+
+// One pixel, hand-computed: exposure [0, 1000], ON events at 200 and 600, C = 0.5.
+// Levels: 0 on [0,200), 1 on [200,600), 2 on [600,1000]. (1/T) int exp(c E) = 0.2 + 0.4 e^0.5 + 0.4
+// e^1.
+TEST(Edi, ExactSumOverTheStepFunctionOfOnePixel) {
+  Observation obs = twoGreyPixels();
   obs.events.push_back(200, 0, 0, 1);
   obs.events.push_back(600, 0, 0, 1);
   auto edi = makeDeblurrer("edi", {{"contrast", "0.5"}});
@@ -92,11 +98,7 @@ TEST(Edi, ExactSumOverTheStepFunctionOfOnePixel) {
 // outside them, 0.25 at 0 and 1.25 from 800 on. A second pixel's ON at 200 and OFF at 600 turned
 // unseen in between: its level holds at 0.5 until 600, with 0.25 before and -0.25 after.
 TEST(Edi, LinearLevelsIntegrateTheStraightPiecesBetweenEvents) {
-  Observation obs;
-  obs.blurry.image = cv::Mat(1, 2, CV_32F, cv::Scalar(0.5));
-  obs.blurry.exposure_start_us = 0;
-  obs.blurry.exposure_end_us = 1000;
-  obs.events.setSensor(SensorSize{2, 1});
+  Observation obs = twoGreyPixels();
   obs.events.push_back(200, 0, 0, 1);
   obs.events.push_back(200, 1, 0, 1);
   obs.events.push_back(600, 0, 0, 1);
