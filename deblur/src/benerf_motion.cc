@@ -785,7 +785,8 @@ OwnDepths ownInverseDepths(const PinholeCamera& camera, const std::vector<cv::Ma
     for (int x = 0; x < W; ++x) {
       const Vector3 b = nerf::pixelDirection(camera, x, y);
       const double r0 = prior.at<float>(y, x);
-      // The Huber cost of the pixel's flows at inverse depth r, and its Gauss-Newton terms.
+      // The Huber cost of the pixel's flows at inverse depth r, and its Gauss-Newton terms through
+      // seenPoint's derivative by the inverse depth.
       const auto cost = [&](double r, double* h, double* g) {
         double e = 0;
         for (int k = 0; k < times; ++k) {
@@ -794,15 +795,16 @@ OwnDepths ownInverseDepths(const PinholeCamera& camera, const std::vector<cv::Ma
           const cv::Point2f f = flows[i].at<cv::Point2f>(y, x);
           if (!std::isfinite(f.x)) continue;
           const Eigen::Vector2d q(x + f.x, y + f.y);
-          const Eigen::Vector2d at = nerf::projectPoint(camera, Rt[i] * (b - r * p[i]));
-          const double n = (at - q).norm();
+          if (!h) {
+            e += huberCost((nerf::projectPoint(camera, Rt[i] * (b - r * p[i])) - q).norm());
+            continue;
+          }
+          const benerf_detail::SeenPoint s = seenPoint(camera, b, r, Rt[i], p[i]);
+          const double n = (s.at - q).norm();
           e += huberCost(n);
-          if (!h) continue;
-          const Eigen::Vector2d J =
-              (nerf::projectPoint(camera, Rt[i] * (b - (r + 1e-5) * p[i])) - at) / 1e-5;
           const double w = huberWeight(n);
-          *h += w * J.squaredNorm();
-          *g += w * J.dot(at - q);
+          *h += w * s.by_inverse_depth.squaredNorm();
+          *g += w * s.by_inverse_depth.dot(s.at - q);
         }
         return e;
       };
