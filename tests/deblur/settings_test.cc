@@ -88,7 +88,8 @@ TEST(Settings, UnknownKeysListTheTable) {
   const std::string edi = errorOf([] { makeDeblurrer("edi", {{"contrasts", "0.2"}}); });
   EXPECT_NE(
       edi.find(
-          "edi: unknown setting 'contrasts' (known: contrast, search, c_min, c_max, margin_us)"),
+          "edi: unknown setting 'contrasts' (known: contrast, search, c_min, c_max, margin_us, "
+          "levels)"),
       std::string::npos)
       << edi;
 }
