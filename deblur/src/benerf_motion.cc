@@ -796,7 +796,7 @@ OwnDepths ownInverseDepths(const PinholeCamera& camera, const std::vector<cv::Ma
           if (!std::isfinite(f.x)) continue;
           const Eigen::Vector2d q(x + f.x, y + f.y);
           if (!h) {
-            e += huberCost((nerf::projectPoint(camera, Rt[i] * (b - r * p[i])) - q).norm());
+            e += huberCost((predict(camera, b, r, Rt[i], p[i]) - q).norm());
             continue;
           }
           const benerf_detail::SeenPoint s = seenPoint(camera, b, r, Rt[i], p[i]);

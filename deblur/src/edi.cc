@@ -82,9 +82,10 @@ cv::Mat EdiModel::latent(const cv::Mat& blurry, int64_t t_us, double c_on, doubl
       double gain = 1.0;
       bool masked = g[x] <= options.black;
       for (int c = 0; c < channels; ++c) masked |= b[x * channels + c] >= options.saturated;
-      if (!masked && events_.count(p) > 0 && options.levels == EdiOptions::Levels::kLinear) {
+      const bool deblurred = !masked && events_.count(p) > 0;
+      if (deblurred && options.levels == EdiOptions::Levels::kLinear) {
         gain = linearGain(p, t_us, c_on, c_off);
-      } else if (!masked && events_.count(p) > 0) {
+      } else if (deblurred) {
         // Level at t: the events of this pixel up to t.
         int32_t on_f = 0, off_f = 0;
         for (uint32_t e = events_.begin(p); e < events_.end(p) && events_.t()[e] <= t_us; ++e) {

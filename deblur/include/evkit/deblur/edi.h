@@ -65,17 +65,18 @@ class EdiModel {
                         const EdiOptions& options) const;
 
  private:
+  // The (time, level) knots of pixel p's log level with the linear levels (it has events).
+  void linearKnots(size_t p, double c_on, double c_off,
+                   std::vector<std::pair<double, double>>& knots) const;
+  // Pixel p's gain at t with the linear levels: 1 / ((1/T) integral exp(l(s) - l(t)) ds).
+  double linearGain(size_t p, int64_t t_us, double c_on, double c_off) const;
+
   struct Segment {
     int32_t on, off;  // events counted since the window start
     double duration;  // µs at this level
   };
   int width_, height_;
   int64_t t_begin_, t_end_;
-  // The (time, level) knots of pixel p's log level with the linear levels (it has events).
-  void linearKnots(size_t p, double c_on, double c_off,
-                   std::vector<std::pair<double, double>>& knots) const;
-  // Pixel p's gain at t with the linear levels: 1 / ((1/T) integral exp(l(s) - l(t)) ds).
-  double linearGain(size_t p, int64_t t_us, double c_on, double c_off) const;
   std::vector<uint32_t> seg_first_;  // pixel p: segments_[seg_first_[p] .. seg_first_[p+1])
   std::vector<Segment> segments_;
   PixelEventIndex events_;  // the exposure's events by pixel
