@@ -42,6 +42,31 @@ double trapezoidMean(int n, Value value) {
 
 }  // namespace
 
+WalkedLeast walkToLeast(const std::function<double(double)>& misfit, double l, double first,
+                        double h, double below, double above) {
+  // Three points h apart, the middle one the least seen: up from l while the misfit falls, else
+  // down; a point beyond [below, above] is not tried (NaN), which ends the walk there.
+  const double none = std::numeric_limits<double>::quiet_NaN();
+  std::array<double, 3> f{none, first, misfit(l + h)};
+  if (f[2] < f[1]) {
+    do {
+      f[0] = f[1];
+      f[1] = f[2];
+      l += h;
+      f[2] = l + h <= above + 1e-9 ? misfit(l + h) : none;
+    } while (f[2] < f[1]);
+  } else {
+    f[0] = misfit(l - h);
+    while (f[0] < f[1]) {
+      f[2] = f[1];
+      f[1] = f[0];
+      l -= h;
+      f[0] = l - h >= below - 1e-9 ? misfit(l - h) : none;
+    }
+  }
+  return {l + vertexShift(f[0], f[1], f[2], h), std::isnan(f[0])};
+}
+
 cv::Mat exposureEventCounts(const Observation& obs) {
   const Frame& blurry = obs.blurry;
   EventSpan span = obs.events.sliceTime(blurry.exposure_start_us, blurry.exposure_end_us);
@@ -114,24 +139,28 @@ StartFit startFit(const PixelGridProblem& problem, const std::vector<double>& x,
 // small c without a least (smooth content with noisy events: the events' noise weighs least at a
 // small c, and smooth content blurred looks much like itself; BENCHMARKS.md, "The thresholds from
 // the events' counts"); within it the walk's sharp least refines the counts' c, which is up to 20%
-// off. The candidates' registrations leave the depths' offset unchosen (only their image motion is
-// scored). Each pixel's share of the misfit counts as many times as the pixel saw events over the
-// exposure: a pixel that the motion barely moves fires a few, each up to a threshold off what it
-// stands for, and EDI's frame at a smaller c follows that quantisation less, so over all pixels
-// alike the misfit fell towards low c wherever most of the image barely moves (a backdrop at 8 m
-// with 85% of the image motion from translation: 0.130 for the truth 0.2, 3 dB lost; BENCHMARKS.md,
-// "Outside the suites: exposure, translation, long blur, the sensor's size"). A pixel with n events
-// tells its log change to about one threshold in n. A walk in log c by steps of 2^(1/6) from c0 to
-// the least, then a parabola through it and its neighbours. The misfit has a sharp, lopsided
-// minimum (in log, a cusp: on text_blur15 without thresholds it rises from the least at 0.215 about
-// twice as steeply towards lower c), so a parabola through points 2^(1/3) apart put the least at
-// 0.229, half a step off; at 2^(1/6) the points bracket it closely and the vertex is off by a
-// fraction of the finer step. The first candidate's start is checked as the final solve's is
-// (StartFit): where it misfits, the grid would decline after the walk, and the walk stops. On the
-// suites and 60 photographs not in them, without thresholds, the first candidate's misfit was 0.58
-// of the change or more on four frames that the final check sent to the hash field, and 0.34 at
-// most on the frames that the grid solved (the final check: 0.36 at most; BENCHMARKS.md, "Where the
-// grid declines, the hash field's start").
+// off. A walk that the band stops below while its misfit still falls has found no least: neither
+// the counts nor the solves told c there, and the grid declines as at the range's ends
+// (SolvedContrast::falls_below_band; BENCHMARKS.md, "Where the walk finds no least"). Not above:
+// the fall towards small c is the misfit's bias, so a walk that climbs to the band's top went
+// against it. The candidates' registrations leave the depths' offset unchosen (only their image
+// motion is scored). Each pixel's share of the misfit counts as many times as the pixel saw events
+// over the exposure: a pixel that the motion barely moves fires a few, each up to a threshold off
+// what it stands for, and EDI's frame at a smaller c follows that quantisation less, so over all
+// pixels alike the misfit fell towards low c wherever most of the image barely moves (a backdrop at
+// 8 m with 85% of the image motion from translation: 0.130 for the truth 0.2, 3 dB lost;
+// BENCHMARKS.md, "Outside the suites: exposure, translation, long blur, the sensor's size"). A
+// pixel with n events tells its log change to about one threshold in n. A walk in log c by steps of
+// 2^(1/6) from c0 to the least, then a parabola through it and its neighbours. The misfit has a
+// sharp, lopsided minimum (in log, a cusp: on text_blur15 without thresholds it rises from the
+// least at 0.215 about twice as steeply towards lower c), so a parabola through points 2^(1/3)
+// apart put the least at 0.229, half a step off; at 2^(1/6) the points bracket it closely and the
+// vertex is off by a fraction of the finer step. The first candidate's start is checked as the
+// final solve's is (StartFit): where it misfits, the grid would decline after the walk, and the
+// walk stops. On the suites and 60 photographs not in them, without thresholds, the first
+// candidate's misfit was 0.58 of the change or more on four frames that the final check sent to the
+// hash field, and 0.34 at most on the frames that the grid solved (the final check: 0.36 at most;
+// BENCHMARKS.md, "Where the grid declines, the hash field's start").
 SolvedContrast contrastFromSolves(
     const Observation& given, const PinholeCamera& camera,
     const std::function<Trajectory(const std::vector<StampedPose>&)>& fit, PixelGridOptions po,
@@ -201,31 +230,16 @@ SolvedContrast contrastFromSolves(
   const double lo = std::log(kLeastContrast), hi = std::log(kMostContrast), h = std::log(2.0) / 6;
   // The walk stays within `band` of c0 (in log c) and inside the range.
   const double below = std::max(lo, std::log(c0) - band), above = std::min(hi, std::log(c0) + band);
-  // Three points in log c, h apart, the middle one the least seen: walk up from c0 while the
-  // misfit falls, else down.
   double l = std::clamp(std::log(c0), lo + h, hi - h);
   const double first = misfit(l);
   result.parameters["contrast_solves"] = solves;
   if (out.start_misfits) return out;
-  std::array<double, 3> f{0, first, misfit(l + h)};
-  const double none = std::numeric_limits<double>::quiet_NaN();
-  if (f[2] < f[1]) {
-    do {
-      f[0] = f[1];
-      f[1] = f[2];
-      l += h;
-      f[2] = l + h <= above + 1e-9 ? misfit(l + h) : none;
-    } while (f[2] < f[1]);
-  } else {
-    f[0] = misfit(l - h);
-    while (f[0] < f[1]) {
-      f[2] = f[1];
-      f[1] = f[0];
-      l -= h;
-      f[0] = l - h >= below - 1e-9 ? misfit(l - h) : none;
-    }
-  }
-  l += vertexShift(f[0], f[1], f[2], h);
+  const WalkedLeast walked = walkToLeast(misfit, l, first, h, below, above);
+  l = walked.l;
+  // Not below kHashBlur, where the hash field would do worse than the grid at any c in the band
+  // (hard_blur2 without thresholds: the walk at the band's foot, 0.218 for the truth's 0.2; the
+  // grid there 34.42 dB, the hash field 31.61, EDI at its searched c 28.87).
+  out.falls_below_band = walked.falling_at_below && below > lo + h / 2 && blur_px >= kHashBlur;
   // At an end within half a step of it: the walk's points are c0's steps of 2^(1/6), not the
   // range's, and can stop a hair inside an end (the noisy ground_blur15 without thresholds: at
   // 0.05002, where the motion had collapsed with c; the grid then 6.5 dB below the frame of the

@@ -27,6 +27,7 @@
 #include "evkit/harness/speed_error.h"
 #include "evkit/synth/generator.h"
 #include "jacobian_check.h"
+#include "pixel_grid_start.h"
 #include "test_util.h"
 
 namespace evkit {
@@ -2093,6 +2094,38 @@ TEST(Benerf, WithoutEventsTheGridRunsAtEdisCAndKeepsTheFrame) {
   EXPECT_EQ(p.at("representation_pixels"), 1.0);
   EXPECT_EQ(p.at("start_kept"), 1.0);
   EXPECT_GT(psnr(m.benerf.frames[0].image, obs.blurry.image), 50.0);
+}
+
+// The walk for c (benerf_detail::walkToLeast) by steps of 2^(1/6) within the counts' band of
+// 2^(1/3) either side, on stand-in misfits: one that still falls where the band ends below (the
+// walk stops at the band's foot and says so: the grid then declines), one whose least lies inside
+// (found to the parabola's vertex, exact for a parabola), and one that falls upwards to the band's
+// top (a walk against the fall towards small c that the misfit is biased to; not flagged).
+TEST(Benerf, TheWalkForCSaysWhereItsMisfitStillFellAtTheBandsFoot) {
+  const double h = std::log(2.0) / 6, l0 = std::log(0.2), below = l0 - 2 * h, above = l0 + 2 * h;
+  std::vector<double> tried;
+  const auto walk = [&](const std::function<double(double)>& misfit) {
+    tried.clear();
+    const auto counted = [&](double l) {
+      tried.push_back(l);
+      return misfit(l);
+    };
+    return benerf_detail::walkToLeast(counted, l0, misfit(l0), h, below, above);
+  };
+  const auto falling = walk([](double l) { return l; });
+  EXPECT_NEAR(falling.l, below, 1e-12);
+  EXPECT_TRUE(falling.falling_at_below);
+  for (const double l : tried) EXPECT_GE(l, below - 1e-9) << "a point beyond the band was tried";
+
+  const double least = l0 - 1.3 * h;
+  const auto inside = walk([&](double l) { return (l - least) * (l - least); });
+  EXPECT_NEAR(inside.l, least, 1e-9);
+  EXPECT_FALSE(inside.falling_at_below);
+
+  const auto rising = walk([](double l) { return -l; });
+  EXPECT_NEAR(rising.l, above, 1e-12);
+  EXPECT_FALSE(rising.falling_at_below);
+  for (const double l : tried) EXPECT_LE(l, above + 1e-9) << "a point beyond the band was tried";
 }
 
 // Where the registration at EDI's searched c fails, it is tried again away from that c: down from
