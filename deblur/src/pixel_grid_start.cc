@@ -139,11 +139,12 @@ StartFit startFit(const PixelGridProblem& problem, const std::vector<double>& x,
 // small c without a least (smooth content with noisy events: the events' noise weighs least at a
 // small c, and smooth content blurred looks much like itself; BENCHMARKS.md, "The thresholds from
 // the events' counts"); within it the walk's sharp least refines the counts' c, which is up to 20%
-// off. A walk that the band stops below while its misfit still falls has found no least: neither
-// the counts nor the solves told c there, and the grid declines as at the range's ends
-// (SolvedContrast::falls_below_band; BENCHMARKS.md, "Where the walk finds no least"). Not above:
-// the fall towards small c is the misfit's bias, so a walk that climbs to the band's top went
-// against it. The candidates' registrations leave the depths' offset unchosen (only their image
+// off. A walk that the band stops below while its misfit still falls has found no least there
+// (SolvedContrast::falls_below_band): either the counts were raised by a motion registered too
+// far and the truth lies beyond the band, or nothing tells c, which the caller judges by the
+// counts' own check (runPixelGrid; BENCHMARKS.md, "Where the walk finds no least"). Not above: the
+// fall towards small c is the misfit's bias, so a walk that climbs to the band's top went against
+// it. The candidates' registrations leave the depths' offset unchosen (only their image
 // motion is scored). Each pixel's share of the misfit counts as many times as the pixel saw events
 // over the exposure: a pixel that the motion barely moves fires a few, each up to a threshold off
 // what it stands for, and EDI's frame at a smaller c follows that quantisation less, so over all

@@ -96,8 +96,7 @@ struct SolvedContrast {
   Contrast contrast;
   bool at_end = false;  // the least at an end of [0.05, 1]
   // The misfit still falling where the band ends below, at a blur of kHashBlur or more: no least
-  // within it, the walk having followed the fall towards small c that the events' noise and
-  // smooth content make (contrastFromSolves).
+  // within it (contrastFromSolves).
   bool falls_below_band = false;
   // Where the first candidate's start misfits (StartFit::misfits) at a blur of kHashBlur or more,
   // the walk stops there (no contrast found), and `start` says how.

@@ -1879,7 +1879,8 @@ TEST(Benerf, WithoutThresholdsTheirRatioIsFound) {
 // at EDI's 0.5 and 0.299 along the one registered there, and the solves walk down from it to the
 // band's end, 0.237: 35.93 dB (35.75 with the thresholds given; EDI with its searched c 26.84). The
 // counts follow the c of their motion here by an exponent of 0.48, under the bar of 0.75 beyond
-// which the grid would decline (the hash field: 19.54 dB).
+// which the grid would decline (the hash field: 19.54 dB); so the walk's end at the band's foot
+// does not make it decline either (benerf_train.cc, `contrast_untold`).
 TEST(Benerf, WithoutThresholdsEachPixelsMisfitCountsByItsEvents) {
   if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   const auto natural = prerolledNatural("rocket_layers", 403, 15, 0.15, true);
@@ -1892,6 +1893,9 @@ TEST(Benerf, WithoutThresholdsEachPixelsMisfitCountsByItsEvents) {
       << p.at("contrast_counts_correlation") << "; BeNeRF " << m.benerf_psnr << " dB";
   EXPECT_LE(p.at("contrast_solves"), 5.0);
   EXPECT_LT(p.at("contrast_counts_follow"), 0.75);
+  // The walk ends at the band's foot, but the counts passed their check: the grid keeps its c.
+  EXPECT_EQ(p.at("contrast_falls_below_band"), 1.0);
+  EXPECT_EQ(p.at("contrast_untold"), 0.0);
   EXPECT_GT(m.benerf_psnr, m.edi_psnr + 5.0)
       << "BeNeRF " << m.benerf_psnr << " dB, EDI (c searched) " << m.edi_psnr << " dB";
 }
