@@ -129,6 +129,7 @@ int runDeblur(const Args& args) {
   const Observation obs = loadInput(vm);
   const DeblurRequest request = completeRequest(obs, parseTimes(vm, obs));
   const MethodReport r = runMethod(obs, made, request, vm["out"].as<std::string>());
+  if (!r.result.account.empty()) std::cerr << method << ": " << r.result.account << "\n";
   std::cerr << method << ": " << r.result.frames.size() << " frames in " << fmt(r.wall_s, "%.3f")
             << " s; PSNR(mid) " << fmt(r.psnr_mid, "%.2f") << " dB, SSIM(mid) "
             << fmt(r.ssim_mid, "%.4f") << ", BRISQUE(mid) " << fmt(r.brisque_mid, "%.1f") << " -> "

@@ -9,9 +9,11 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <map>
 #include <numbers>
 #include <opencv2/imgproc.hpp>
 #include <optional>
+#include <string>
 #include <thread>
 #include <vector>
 
@@ -589,6 +591,11 @@ HeldOutError imageMotionError(const PinholeCamera& camera) {
 bool runPixelGrid(const Observation& given, const DeblurRequest& request, const Start& s,
                   Clock::time_point start, DeblurResult& result) {
   const BenerfOptions& o = s.options;
+  // Why it declines, for the account (run).
+  const auto decline = [&result](const char* why) {
+    result.account = std::string("the pixel grid declined: ") + why;
+    return false;
+  };
   const PinholeCamera camera =
       given.camera.withSize(given.blurry.image.cols, given.blurry.image.rows);
   const int64_t t0 = given.blurry.exposure_start_us, t1 = given.blurry.exposure_end_us;
@@ -665,7 +672,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     Trajectory counted_path = fit(registered.poses);
     CountedContrast counted = countsAndRatio(registered, counted_path);
     result.parameters["contrast_from_counts_searched"] = counted.c;
-    if (!inRange(counted.c)) return false;
+    if (!inRange(counted.c)) return decline("the events' counts told no thresholds");
     const double registered_c = s.registered_away_c > 0 ? s.registered_away_c : m.c_on;
     double counted_c = registered_c;  // the c of the motion the count was taken along
     // The registrations at the counts' c and at the c found below ask the misfit of thresholds
@@ -688,7 +695,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     result.parameters["contrast_ratio"] = ratio;
     result.parameters["contrast_from_counts"] = counted.c;
     result.parameters["contrast_counts_correlation"] = counted.correlation;
-    if (!inRange(counted.c)) return false;
+    if (!inRange(counted.c)) return decline("the events' counts told no thresholds");
     // Whether the counts tell c at all: counted once more along the motion registered at twice the
     // c of the last. Where the image holds little but smooth shading, the motion registered grows
     // with the c it is registered at and the counts grow with it, so that every c is nearly a
@@ -711,7 +718,8 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     if (counts_checked) {
       const double follow = std::log2(doubled_count / counted.c);
       result.parameters["contrast_counts_follow"] = follow;
-      if (follow > kMostCountsFollow) return false;
+      if (follow > kMostCountsFollow)
+        return decline("the events' counts follow any thresholds the motion is registered at");
     }
     const SolvedContrast found = contrastFromSolves(given, camera, fit, po, ratio, counted.c,
                                                     kCountsBand, counted_blur, o, result);
@@ -720,7 +728,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
       result.parameters["start_change"] = found.start.change;
       result.parameters["start_to_hash"] = 1;
       result.parameters["start_to_hash_in_walk"] = 1;
-      return false;
+      return decline("its start misfits the blurry frame");
     }
     // No c where the walk's least is at its range's end; nor where the band stopped it below while
     // its misfit still fell and the counts' own check above had no evidence either, so that
@@ -734,7 +742,9 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     const bool untold = found.falls_below_band && !counts_checked;
     result.parameters["contrast_falls_below_band"] = found.falls_below_band ? 1 : 0;
     result.parameters["contrast_untold"] = untold ? 1 : 0;
-    if (found.at_end || untold) return false;
+    if (found.at_end) return decline("the thresholds found are at an end of their range");
+    if (untold)
+      return decline("neither the events' counts nor its short solves told the thresholds");
     contrast = found.contrast;
     result.parameters["contrast_estimated"] = contrast.on;
     ExposureMotion at_found =
@@ -750,7 +760,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
       // hash field, which refines its own trajectory (hard_dark: registered away from EDI's 0.5 at
       // 0.125, the counts 0.21 for the truth's 0.2, and nothing registers there through its
       // repeating texture; the grid on the motion of 0.125 55.93 dB, the hash field 62.06).
-      return false;
+      return decline("no motion registered at the thresholds found");
     }
     result.timings_s["contrast"] = secondsSince(search_start);
   }
@@ -842,7 +852,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   result.parameters["start_kept"] = keep_start ? 1 : 0;
   if (to_hash) {
     result.parameters["start_to_hash"] = 1;
-    return false;
+    return decline("its start misfits the blurry frame");
   }
   if (!keep_start && !(o.smooth > 0)) {
     const auto choice_start = Clock::now();
@@ -928,6 +938,49 @@ Observation asGrey(const Observation& given) {
   return grey;
 }
 
+// The account's words (DeblurResult::account) for the camera the run used.
+std::string cameraWords(const Observation& obs, const Start& s) {
+  if (!obs.camera_assumed) return "the camera from its calibration";
+  char words[96];
+  if (s.camera_estimated && !s.camera.distortion.empty())
+    std::snprintf(words, sizeof words, "a camera assumed at fx %.0f px with k1 %.2f estimated",
+                  s.camera.fx, s.camera.distortion[0]);
+  else
+    std::snprintf(words, sizeof words, "a pinhole camera assumed at fx %.0f px", obs.camera.fx);
+  return words;
+}
+
+// ... for the fields' event term: normalised, or at the thresholds given or from EDI's search.
+std::string fieldThresholdWords(const Start& s, bool normalised) {
+  if (normalised || !s.options.contrast) return "; the events L2-normalised (no thresholds)";
+  char words[96];
+  std::snprintf(words, sizeof words, "; thresholds %s, %.3f / %.3f",
+                s.contrast_given ? "given" : "from EDI's search", s.options.contrast->on,
+                s.options.contrast->off);
+  return words;
+}
+
+// ... for the grid's scene and its thresholds (its parameters).
+std::string gridWords(const Start& s, const std::map<std::string, double>& p) {
+  const auto flag = [&p](const char* key) { return p.count(key) && p.at(key) != 0; };
+  std::string words = "the pixel grid on ";
+  words += flag("representation_pixel_depth") ? "each pixel's depth"
+           : flag("representation_depth")     ? "a depth per tile"
+                                              : "one plane";
+  if (flag("start_kept")) words += ", EDI's frame kept (its model misfits the blurry frame)";
+  char c[96];
+  if (flag("contrast_edi_retried"))
+    std::snprintf(c, sizeof c, "; thresholds from EDI's search, %.3f", p.at("contrast_estimated"));
+  else if (s.contrast_given)
+    std::snprintf(c, sizeof c, "; thresholds given, %.3f / %.3f", s.options.contrast->on,
+                  s.options.contrast->off);
+  else
+    std::snprintf(
+        c, sizeof c, "; thresholds found from the events, %.3f / %.3f", p.at("contrast_estimated"),
+        p.at("contrast_estimated") * (p.count("contrast_ratio") ? p.at("contrast_ratio") : 1));
+  return words + c;
+}
+
 }  // namespace
 
 DeblurResult BenerfDeblurrer::run(const Observation& given, const DeblurRequest& request) {
@@ -970,6 +1023,8 @@ DeblurResult BenerfDeblurrer::run(const Observation& given, const DeblurRequest&
     throw Error(
         "benerf: checkpoint and resume are for field=hash and field=mlp (the pixel grid is solved "
         "in one go)");
+  if (o.field == BenerfOptions::FieldKind::kPixels && s.motion.poses.empty())
+    result.account = "the pixel grid declined: no rigid motion explains the registration";
   if (o.field == BenerfOptions::FieldKind::kPixels && !s.motion.poses.empty()) {
     bool grid = runPixelGrid(obs, req, s, start, result);
     // Without thresholds, where the grid declined at the c that it found, once more as if EDI's
@@ -991,6 +1046,7 @@ DeblurResult BenerfDeblurrer::run(const Observation& given, const DeblurRequest&
     }
     if (grid) {
       result.parameters["representation_pixels"] = 1;
+      result.account = gridWords(s, result.parameters) + "; " + cameraWords(given, s);
       result.timings_s["total"] = secondsSince(start);
       return result;
     }
@@ -1014,6 +1070,14 @@ DeblurResult BenerfDeblurrer::run(const Observation& given, const DeblurRequest&
   if (o.init == BenerfOptions::Init::kEvents) initialiseFromEvents(obs, problem, s.blur_px, result);
   if (o.init == BenerfOptions::Init::kFrames)
     initialiseFromFrames(obs, problem, s.motion, s.blur_px, result);
+  const auto from = result.parameters.find("initial_from_events");
+  result.account +=
+      std::string(result.account.empty() ? "" : "; ") +
+      (o.field == BenerfOptions::FieldKind::kMlp ? "the MLP field" : "the hash field") +
+      (from == result.parameters.end() ? ", its trajectory from identity"
+       : from->second != 0             ? ", its trajectory from the events' rotation"
+                                       : ", its trajectory from the registered motion") +
+      fieldThresholdWords(s, problem.normalisedEvents()) + "; " + cameraWords(given, s);
   Optimisers optimisers(problem, o);
   std::mt19937_64 rng(o.seed);
   int iterations = o.iterations;

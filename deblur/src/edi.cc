@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <opencv2/imgproc.hpp>
 #include <tuple>
 
@@ -261,6 +262,12 @@ DeblurResult EdiDeblurrer::run(const Observation& obs, const DeblurRequest& requ
   result.parameters["contrast_off"] = c_off;
   result.parameters["contrast_searched"] = searched ? 1.0 : 0.0;
   result.parameters["events"] = static_cast<double>(obs.events.sliceTime(t0, t1 + 1).size());
+  char account[96];
+  if (searched)
+    std::snprintf(account, sizeof account, "thresholds %.3f by the sharpness search", c_on);
+  else
+    std::snprintf(account, sizeof account, "thresholds given, %.3f / %.3f", c_on, c_off);
+  result.account = account;
   return result;
 }
 

@@ -149,7 +149,7 @@ void writeMethodOutputs(const std::string& dir, const Observation& obs, const Me
   bool first = true;
   for (const auto& [k, v] : method.settings)
     j << (first ? "" : ", ") << jsonString(k) << ": " << jsonString(v), first = false;
-  j << "},\n  \"parameters\": {";
+  j << "},\n  \"account\": " << jsonString(report.result.account) << ",\n  \"parameters\": {";
   first = true;
   for (const auto& [k, v] : report.result.parameters)
     j << (first ? "" : ", ") << jsonString(k) << ": " << jsonNumber(v), first = false;

@@ -136,7 +136,8 @@ class DeblurResult:
     def disparity(self) -> Union[npt.NDArray[np.float32], None]: ...
     @property
     def summary(self) -> dict[str, Any]:
-        """As summary.json: method, settings, parameters, wall_time_s, timings_s, metrics, curves"""
+        """As summary.json: method, settings, account (what the method did, in words), parameters,
+        wall_time_s, timings_s, metrics, curves"""
 
 def read(path: PathLike, start: Union[int, None] = None, end: Union[int, None] = None,
          format: Union[str, None] = None) -> Recording:

@@ -104,6 +104,7 @@ py::dict summaryOf(const Observation& obs, const Method& method, const MethodRep
   s["method"] = method.name;
   s["observation"] = obs.source;
   s["settings"] = method.settings;
+  s["account"] = r.result.account;
   s["parameters"] = r.result.parameters;
   s["wall_time_s"] = r.wall_s;
   s["timings_s"] = r.result.timings_s;
@@ -382,7 +383,8 @@ when known.)")
       .def_readonly("disparity", &PyResult::disparity,
                     "float32 (H, W) 1/depth at mid-exposure (arbitrary scale) or None")
       .def_readonly("summary", &PyResult::summary,
-                    "As summary.json: method, settings, parameters, wall_time_s, timings_s, "
+                    "As summary.json: method, settings, account (what the method did, in words), "
+                    "parameters, wall_time_s, timings_s, "
                     "metrics (PSNR/SSIM against ground truth, BRISQUE), training curves");
 
   m.def("deblur", &deblur, py::arg("observation"), py::arg("method") = "edi",

@@ -31,6 +31,7 @@ def test_edi_is_sharper_than_blurry(obs):
     metrics = result.summary["metrics"]
     assert metrics["psnr_mid"] == pytest.approx(psnr(frame, truth), abs=0.05)
     assert result.trajectory is None and result.summary["method"] == "edi"
+    assert result.summary["account"].startswith("thresholds ")  # given or searched, in words
 
 
 def test_tiny_benerf_with_progress(obs):
@@ -46,6 +47,7 @@ def test_tiny_benerf_with_progress(obs):
     np.testing.assert_allclose(np.linalg.norm(traj[:, 4:], axis=1), 1, atol=1e-9)
     assert traj[0, 0] == pytest.approx(obs.exposure[0] * 1e-6)
     assert result.summary["settings"]["iterations"] == "75"
+    assert result.summary["account"].startswith("the hash field, its trajectory from ")
 
 
 def test_progress_exception_stops_the_run(obs):

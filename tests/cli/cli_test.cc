@@ -452,6 +452,8 @@ TEST(Cli, BenchWithUnknownContrastHidesTheThresholdsFromEveryMethod) {
     // bench test above checks), yet EDI searches c.
     EXPECT_EQ(test::readText(dir / ("suite/" + scene + "/contrast.txt")), "0.2 0.2\n");
     EXPECT_NE(summary("unknown", scene, "edi").find("\"contrast_searched\": 1"), std::string::npos);
+    EXPECT_NE(summary("unknown", scene, "edi").find(" by the sharpness search\""),
+              std::string::npos);
   }
   // hard_blur2 (2 px of blur at 48 x 32): EDI's search runs to the end of its range, so BeNeRF
   // normalises its events, with the real-data weight (the paper's 2 at 1,024 event pixels, 4 at

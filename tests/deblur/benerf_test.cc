@@ -1896,6 +1896,9 @@ TEST(Benerf, WithoutThresholdsEachPixelsMisfitCountsByItsEvents) {
   // The walk ends at the band's foot, but the counts passed their check: the grid keeps its c.
   EXPECT_EQ(p.at("contrast_falls_below_band"), 1.0);
   EXPECT_EQ(p.at("contrast_untold"), 0.0);
+  EXPECT_EQ(m.benerf.account.rfind("the pixel grid on ", 0), 0u) << m.benerf.account;
+  EXPECT_NE(m.benerf.account.find("; thresholds found from the events, "), std::string::npos)
+      << m.benerf.account;
   EXPECT_GT(m.benerf_psnr, m.edi_psnr + 5.0)
       << "BeNeRF " << m.benerf_psnr << " dB, EDI (c searched) " << m.edi_psnr << " dB";
 }
@@ -2051,6 +2054,13 @@ TEST(Benerf, WithoutThresholdsTheGridDeclinesWhereItsStartMisfits) {
   EXPECT_EQ(p.at("contrast_solves"), 1.0);
   EXPECT_EQ(p.at("representation_pixels"), 0.0);
   EXPECT_EQ(p.at("initial_from_events"), 1.0);
+  // The account says which model ran and why the grid declined.
+  EXPECT_EQ(m.benerf.account.rfind("the pixel grid declined: its start misfits the blurry frame; "
+                                   "the hash field, its trajectory from the events' rotation; the "
+                                   "events L2-normalised (no thresholds); ",
+                                   0),
+            0u)
+      << m.benerf.account;
   EXPECT_GT(m.benerf_psnr, m.edi_psnr + 5.0)
       << "BeNeRF " << m.benerf_psnr << " dB, EDI (c searched) " << m.edi_psnr << " dB";
 }

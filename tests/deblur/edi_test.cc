@@ -56,6 +56,7 @@ TEST(Edi, MiddleFrameBeatsTheBlurryInputBySixDecibels) {
                        << psnr(obs.blurry.image, gt.image);
   EXPECT_GT(ssim(r.frames[0].image, gt.image), ssim(obs.blurry.image, gt.image));
   EXPECT_EQ(r.parameters.at("contrast_searched"), 0.0);
+  EXPECT_EQ(r.account, "thresholds given, 0.200 / 0.200");
 }
 
 TEST(Edi, ContrastSearchRecoversTheSimulatorThresholdWithinTwentyPercent) {
@@ -64,6 +65,7 @@ TEST(Edi, ContrastSearchRecoversTheSimulatorThresholdWithinTwentyPercent) {
   const DeblurResult r = edi->run(obs, DeblurRequest{{obs.blurry.exposure_start_us}});
   EXPECT_EQ(r.parameters.at("contrast_searched"), 1.0);
   EXPECT_NEAR(r.parameters.at("contrast_on"), 0.2, 0.2 * 0.2);
+  EXPECT_NE(r.account.find(" by the sharpness search"), std::string::npos) << r.account;
 }
 
 // Two grey pixels (0.5) exposed over [0, 1000] µs, without events yet.

@@ -31,6 +31,9 @@ struct DeblurResult {
   std::vector<std::pair<int, double>> curve_psnr;  // (iteration, PSNR of the mid frame against gt/)
   cv::Mat disparity;  // float32 at mid-exposure, where the method models depth (1 / depth,
                       // arbitrary scale)
+  // What the method did, in a line of words: the model it chose, the thresholds and the camera it
+  // used, and why it left a model out (BeNeRF's; EDI's thresholds). Empty where nothing was chosen.
+  std::string account;
 };
 
 // A `contrast=C[,C_off]` setting as (C_on, C_off), both positive; throws evkit::Error otherwise.
