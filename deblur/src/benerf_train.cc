@@ -962,22 +962,28 @@ std::string fieldThresholdWords(const Start& s, bool normalised) {
 
 // ... for the grid's scene and its thresholds (its parameters).
 std::string gridWords(const Start& s, const std::map<std::string, double>& p) {
-  const auto flag = [&p](const char* key) { return p.count(key) && p.at(key) != 0; };
+  const auto value = [&p](const char* key) {
+    const auto it = p.find(key);
+    return it == p.end() ? std::nan("") : it->second;
+  };
+  const auto flag = [&value](const char* key) {
+    return value(key) != 0 && !std::isnan(value(key));
+  };
   std::string words = "the pixel grid on ";
   words += flag("representation_pixel_depth") ? "each pixel's depth"
            : flag("representation_depth")     ? "a depth per tile"
                                               : "one plane";
   if (flag("start_kept")) words += ", EDI's frame kept (its model misfits the blurry frame)";
   char c[96];
+  const double found = value("contrast_estimated"), ratio = value("contrast_ratio");
   if (flag("contrast_edi_retried"))
-    std::snprintf(c, sizeof c, "; thresholds from EDI's search, %.3f", p.at("contrast_estimated"));
+    std::snprintf(c, sizeof c, "; thresholds from EDI's search, %.3f", found);
   else if (s.contrast_given)
     std::snprintf(c, sizeof c, "; thresholds given, %.3f / %.3f", s.options.contrast->on,
                   s.options.contrast->off);
   else
-    std::snprintf(
-        c, sizeof c, "; thresholds found from the events, %.3f / %.3f", p.at("contrast_estimated"),
-        p.at("contrast_estimated") * (p.count("contrast_ratio") ? p.at("contrast_ratio") : 1));
+    std::snprintf(c, sizeof c, "; thresholds found from the events, %.3f / %.3f", found,
+                  found * (std::isnan(ratio) ? 1 : ratio));
   return words + c;
 }
 
