@@ -737,9 +737,12 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     // the grid there 29.86 dB, EDI 30.71, the hash field 38.69). Where the counts passed their
     // check, a walk to the band's foot is one from counts that a motion registered too far has
     // raised (a rocket before its backdrop: the counts 0.299 and following by 0.48, the walk at
-    // the band's 0.237 for the truth 0.2; the grid 35.93 dB, the hash field 19.54).
+    // the band's 0.237 for the truth 0.2; the grid 35.93 dB, the hash field 19.54). Not below
+    // kHashBlur, where the hash field does worse than the grid at any c in the band (hard_blur2
+    // without thresholds: the walk at the band's foot, 0.218 for the truth's 0.2, the counts not
+    // checked there; the grid 34.42 dB, the hash field 31.61, EDI at its searched c 28.87).
     result.parameters["contrast_at_range_end"] = found.at_end ? 1 : 0;
-    const bool untold = found.falls_below_band && !counts_checked;
+    const bool untold = found.falls_below_band && !counts_checked && counted_blur >= kHashBlur;
     result.parameters["contrast_falls_below_band"] = found.falls_below_band ? 1 : 0;
     result.parameters["contrast_untold"] = untold ? 1 : 0;
     if (found.at_end) return decline("the thresholds found are at an end of their range");
@@ -950,14 +953,17 @@ std::string cameraWords(const Observation& obs, const Start& s) {
   return words;
 }
 
+// ... for thresholds c and where they came from (`how`).
+std::string thresholdWords(const char* how, const Contrast& c) {
+  char words[96];
+  std::snprintf(words, sizeof words, "; thresholds %s, %.3f / %.3f", how, c.on, c.off);
+  return words;
+}
+
 // ... for the fields' event term: normalised, or at the thresholds given or from EDI's search.
 std::string fieldThresholdWords(const Start& s, bool normalised) {
   if (normalised || !s.options.contrast) return "; the events L2-normalised (no thresholds)";
-  char words[96];
-  std::snprintf(words, sizeof words, "; thresholds %s, %.3f / %.3f",
-                s.contrast_given ? "given" : "from EDI's search", s.options.contrast->on,
-                s.options.contrast->off);
-  return words;
+  return thresholdWords(s.contrast_given ? "given" : "from EDI's search", *s.options.contrast);
 }
 
 // ... for the grid's scene and its thresholds (its parameters).
@@ -967,24 +973,21 @@ std::string gridWords(const Start& s, const std::map<std::string, double>& p) {
     return it == p.end() ? std::nan("") : it->second;
   };
   const auto flag = [&value](const char* key) {
-    return value(key) != 0 && !std::isnan(value(key));
+    const double v = value(key);
+    return !std::isnan(v) && v != 0;
   };
   std::string words = "the pixel grid on ";
   words += flag("representation_pixel_depth") ? "each pixel's depth"
            : flag("representation_depth")     ? "a depth per tile"
                                               : "one plane";
   if (flag("start_kept")) words += ", EDI's frame kept (its model misfits the blurry frame)";
-  char c[96];
+  if (s.contrast_given) return words + thresholdWords("given", *s.options.contrast);
+  // EDI's search takes one c for both signs; the grid's own takes c_off / c_on from the counts.
   const double found = value("contrast_estimated"), ratio = value("contrast_ratio");
   if (flag("contrast_edi_retried"))
-    std::snprintf(c, sizeof c, "; thresholds from EDI's search, %.3f", found);
-  else if (s.contrast_given)
-    std::snprintf(c, sizeof c, "; thresholds given, %.3f / %.3f", s.options.contrast->on,
-                  s.options.contrast->off);
-  else
-    std::snprintf(c, sizeof c, "; thresholds found from the events, %.3f / %.3f", found,
-                  found * (std::isnan(ratio) ? 1 : ratio));
-  return words + c;
+    return words + thresholdWords("from EDI's search", Contrast{found, found});
+  return words + thresholdWords("found from the events",
+                                Contrast{found, found * (std::isnan(ratio) ? 1 : ratio)});
 }
 
 }  // namespace

@@ -237,10 +237,7 @@ SolvedContrast contrastFromSolves(
   if (out.start_misfits) return out;
   const WalkedLeast walked = walkToLeast(misfit, l, first, h, below, above);
   l = walked.l;
-  // Not below kHashBlur, where the hash field would do worse than the grid at any c in the band
-  // (hard_blur2 without thresholds: the walk at the band's foot, 0.218 for the truth's 0.2; the
-  // grid there 34.42 dB, the hash field 31.61, EDI at its searched c 28.87).
-  out.falls_below_band = walked.falling_at_below && below > lo + h / 2 && blur_px >= kHashBlur;
+  out.falls_below_band = walked.falling_at_below && below > lo + h / 2;
   // At an end within half a step of it: the walk's points are c0's steps of 2^(1/6), not the
   // range's, and can stop a hair inside an end (the noisy ground_blur15 without thresholds: at
   // 0.05002, where the motion had collapsed with c; the grid then 6.5 dB below the frame of the

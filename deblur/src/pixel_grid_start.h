@@ -95,8 +95,7 @@ WalkedLeast walkToLeast(const std::function<double(double)>& misfit, double l, d
 struct SolvedContrast {
   Contrast contrast;
   bool at_end = false;  // the least at an end of [0.05, 1]
-  // The misfit still falling where the band ends below, at a blur of kHashBlur or more: no least
-  // within it (contrastFromSolves).
+  // The misfit still falling where the band ends below: no least within it (contrastFromSolves).
   bool falls_below_band = false;
   // Where the first candidate's start misfits (StartFit::misfits) at a blur of kHashBlur or more,
   // the walk stops there (no contrast found), and `start` says how.
