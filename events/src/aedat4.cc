@@ -283,6 +283,12 @@ class Aedat4Reader final : public EventReader {
     }
   }
 
+  static fb4::Event eventAt(const uint8_t* events, size_t i) {
+    fb4::Event e;
+    std::memcpy(static_cast<void*>(&e), events + i * sizeof(fb4::Event), sizeof(fb4::Event));
+    return e;
+  }
+
   void appendEvents(EventStore& ev, size_t first, size_t n) {
     const size_t base = ev.size();
     ev.t.resize(base + n);
@@ -293,37 +299,39 @@ class Aedat4Reader final : public EventReader {
     const int h = info_.sensor.known() ? info_.sensor.height : 65536;
     bool bad = false;
     int64_t prev = last_t_;
-    const auto* in = reinterpret_cast<const fb4::Event*>(events_->Data()) + first;  // verified size
+    // The verifier checks the vector's length field (4-byte aligned), not its 8-byte structs:
+    // each event is copied out rather than read in place.
+    const uint8_t* in = events_->Data() + first * sizeof(fb4::Event);  // verified size
     int64_t* out_t = ev.t.data() + base;
     uint16_t* out_x = ev.x.data() + base;
     uint16_t* out_y = ev.y.data() + base;
     int8_t* out_p = ev.p.data() + base;
     for (size_t i = 0; i < n; ++i) {
-      const int64_t t = in[i].t();
-      const int x = in[i].x(), y = in[i].y();
+      const fb4::Event e = eventAt(in, i);
+      const int64_t t = e.t();
+      const int x = e.x(), y = e.y();
       bad |= (x < 0) | (y < 0) | (x >= w) | (y >= h) | (t < prev);
       prev = t;
       out_t[i] = t;
       out_x[i] = static_cast<uint16_t>(x);
       out_y[i] = static_cast<uint16_t>(y);
-      out_p[i] = static_cast<int8_t>(2 * static_cast<int>(in[i].on()) -
-                                     1);  // branch-free: polarity is random
+      out_p[i] = static_cast<int8_t>(2 * static_cast<int>(e.on()) - 1);  // branch-free
     }
     if (bad) {
       for (size_t i = 0; i < n; ++i) {
-        const fb4::Event* e = events_->Get(static_cast<flatbuffers::uoffset_t>(first + i));
+        const fb4::Event e = eventAt(in, i);
         const std::string where = "event " + std::to_string(first + i) + " of the packet";
-        if (e->x() < 0 || e->y() < 0 || e->x() >= w || e->y() >= h) {
-          file_.failAt(packet_at_, where + ": (x, y) = (" + std::to_string(e->x()) + ", " +
-                                       std::to_string(e->y()) + ") outside the " +
+        if (e.x() < 0 || e.y() < 0 || e.x() >= w || e.y() >= h) {
+          file_.failAt(packet_at_, where + ": (x, y) = (" + std::to_string(e.x()) + ", " +
+                                       std::to_string(e.y()) + ") outside the " +
                                        std::to_string(w) + "x" + std::to_string(h) + " sensor");
         }
-        if (e->t() < last_t_) {
-          file_.failAt(packet_at_, where + ": timestamp " + std::to_string(e->t()) +
+        if (e.t() < last_t_) {
+          file_.failAt(packet_at_, where + ": timestamp " + std::to_string(e.t()) +
                                        " us goes back in time (previous " +
                                        std::to_string(last_t_) + " us)");
         }
-        last_t_ = e->t();
+        last_t_ = e.t();
       }
     }
     last_t_ = prev;

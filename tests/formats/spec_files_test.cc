@@ -4,6 +4,8 @@
 #include <flatbuffers/flatbuffers.h>
 #include <gtest/gtest.h>
 
+#include <cstring>
+
 #include "aedat4/events_generated.h"
 #include "aedat4/frame_generated.h"
 #include "aedat4/ioheader_generated.h"
@@ -301,6 +303,59 @@ TEST(Aedat4, FrameWithoutExposureFieldsUsesTimestampPlusExposure) {
   b.le32(7).le32(0);
   b.save(dir / "g.aedat4");
   EXPECT_THROW(readRecording(dir / "g.aedat4"), Error);
+}
+
+// FlatBuffers' verifier checks a vector's 4-byte length field, not the 8-byte alignment of its
+// structs: a valid EVTS packet may hold its events 4 bytes off that alignment (as the fuzzer
+// found), and they must still be read, not read in place as misaligned 8-byte structs.
+TEST(Aedat4, EventsFourBytesOffTheirAlignmentAreRead) {
+  ScratchDir dir;
+  const std::string xml =
+      "<dv version=\"2.0\"><node name=\"outInfo\" path=\"/mainloop/Recorder/outInfo/\">"
+      "<node name=\"0\" path=\"/mainloop/Recorder/outInfo/0/\"><attr key=\"typeIdentifier\" "
+      "type=\"string\">EVTS</attr>"
+      "<node name=\"info\" path=\"/mainloop/Recorder/outInfo/0/info/\"><attr key=\"sizeX\" "
+      "type=\"int\">8</attr>"
+      "<attr key=\"sizeY\" type=\"int\">6</attr></node></node></node></dv>";
+  flatbuffers::FlatBufferBuilder header;
+  header.FinishSizePrefixed(
+      aedat4::CreateIOHeader(header, aedat4::CompressionType::NONE, -1, header.CreateString(xml)),
+      "IOHE");
+  const std::vector<aedat4::Event> events = {
+      {100, 1, 2, true}, {250, 7, 5, false}, {251, 0, 0, true}};
+  flatbuffers::FlatBufferBuilder fbb;
+  fbb.FinishSizePrefixed(aedat4::CreateEventPacket(fbb, fbb.CreateVectorOfStructs(events)), "EVTS");
+  std::string packet(reinterpret_cast<const char*>(fbb.GetBufferPointer()), fbb.GetSize());
+  const auto* root = flatbuffers::GetSizePrefixedRoot<aedat4::EventPacket>(packet.data());
+  const size_t length_at =
+      reinterpret_cast<const char*>(root->elements()->Data()) - packet.data() - 4;
+  ASSERT_EQ(length_at % 8, 4u);  // as the builder aligns it: the structs at a multiple of 8
+  // Four bytes before the length field, and the table's offset to it (the one 4-byte word
+  // before it that points there) and the size prefix grown by four.
+  size_t field_at = 0;
+  for (size_t at = 8; at < length_at; at += 4) {
+    uint32_t offset = 0;
+    std::memcpy(&offset, packet.data() + at, 4);
+    if (at + offset == length_at) field_at = at;
+  }
+  ASSERT_GT(field_at, 0u);
+  packet.insert(length_at, 4, '\0');
+  for (const size_t at : {size_t{0}, field_at}) {
+    uint32_t value = 0;
+    std::memcpy(&value, packet.data() + at, 4);
+    value += 4;
+    std::memcpy(packet.data() + at, &value, 4);
+  }
+  Bytes b;
+  b.str("#!AER-DAT4.0\r\n").raw(header.GetBufferPointer(), header.GetSize());
+  b.le32(0).le32(static_cast<uint32_t>(packet.size())).raw(packet.data(), packet.size());
+  b.save(dir / "e.aedat4");
+  const Recording rec = readRecording(dir / "e.aedat4");
+  ASSERT_EQ(rec.events.size(), 3u);
+  EXPECT_EQ(rec.events.t, (std::vector<int64_t>{100, 250, 251}));
+  EXPECT_EQ(rec.events.x, (std::vector<uint16_t>{1, 7, 0}));
+  EXPECT_EQ(rec.events.y, (std::vector<uint16_t>{2, 5, 0}));
+  EXPECT_EQ(rec.events.p, (std::vector<int8_t>{1, -1, 1}));
 }
 
 // ---- Prophesee
