@@ -107,6 +107,9 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
         .integer("motion_rounds", &O::motion_rounds, {0, 4},
                  "the pixel grid refines the motion from its solved image and solves again, this "
                  "many times")
+        .integer("depth_steps", &O::depth_steps, {0, 4},
+                 "the pixel grid refines its inverse depth from the solved image this many times "
+                 "before the motion's rounds, each step kept where the loss falls")
         .integer("knots", &O::knots, {0},
                  "trajectory knots (0: the pixel grid's from its registered motion by "
                  "leave-one-out, 4 to 7 from 9 poses, to 15 from 17 for a motion that turns; the "

@@ -522,6 +522,28 @@ constexpr double kDenseKnotTolerancePx = 0.1;
 constexpr int kRoundMotionSteps = 3;
 constexpr double kRoundConverged = 1e-2;
 
+// One step of the grid's inverse depth from the solved image (BenerfOptions::depth_steps): a
+// Gauss-Newton step of the event term in it, over 9 x 9 pixels at a time, each pixel's sample moved
+// by at most half a pixel (PixelGridProblem::refinedInverseDepth), kept where it lowers the grid's
+// loss at that image. Both sides are rebuilt, on the refined depth and on the same depth, the image
+// carried over (PixelGridProblem::carriedFrom): the problem in hand took its views from the motion
+// before its refinement. True where the step was kept (the problem and x then on the new depth).
+constexpr int kDepthWindowRadius = 4;
+
+bool stepDepth(std::optional<PixelGridProblem>& problem, std::vector<double>& x,
+               const Observation& obs, const PinholeCamera& camera, const Contrast& contrast,
+               const PixelGridOptions& po) {
+  const cv::Mat refined = problem->refinedInverseDepth(x, kDepthWindowRadius);
+  PixelGridProblem same(obs, camera, problem->motion(), problem->inverseDepth(), contrast, po);
+  PixelGridProblem next(obs, camera, problem->motion(), refined, contrast, po);
+  std::vector<double> next_x = next.carriedFrom(*problem, x);
+  if (!(next.evaluate(next_x, nullptr) < same.evaluate(same.carriedFrom(*problem, x), nullptr)))
+    return false;
+  problem = std::move(next);
+  x = std::move(next_x);
+  return true;
+}
+
 // The smoothness candidates, in the order tried: PixelGridOptions' default first.
 constexpr std::array<double, 3> kSmoothness{0.01, 0.03, 0.1};
 
@@ -873,6 +895,14 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     terms = at_start.terms;
   else
     iterations = problem->solve(x, steps, &terms, deadline, progress, convergedIn(0));
+  // The depth from the solved image (BenerfOptions::depth_steps), before the motion's rounds.
+  int depth_kept = 0;
+  for (int step = 0; step < (keep_start ? 0 : o.depth_steps) && Clock::now() < deadline; ++step) {
+    if (!stepDepth(problem, x, obs, camera, contrast, po)) break;
+    inverse_depth = problem->inverseDepth().clone();
+    ++depth_kept;
+  }
+  result.parameters["depth_steps_kept"] = depth_kept;
   for (int round = 1; round <= rounds && Clock::now() < deadline; ++round) {
     problem->refineMotion(x, kRoundMotionSteps);
     const int done = iterations;

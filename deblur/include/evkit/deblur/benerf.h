@@ -133,6 +133,12 @@ struct BenerfOptions {
   // lengthens it. Measured at `fast` against 0 (BENCHMARKS.md, "The motion again from the solved
   // image"): natural suite 38.39 -> 38.59 dB (-0.05 to +0.79), image motion error 0.54 -> 0.50 px.
   int motion_rounds = 1;
+  // Before those rounds the pixel grid refines its inverse depth from the solved image this many
+  // times: a Gauss-Newton step of the event term in each pixel's inverse depth (one change over
+  // each 9 x 9 pixels, the samples moved by at most half a pixel), kept where the grid's loss
+  // falls. The registration's depth is per tile from EDI's noisy frames; the grid's events see
+  // every pixel (BENCHMARKS.md, "The depth from the solved image").
+  int depth_steps = 1;
   double knot_init = 0.01;  // knots start at exp(u), u uniform in [-knot_init, knot_init]^6
   // Where the trajectory starts. kIdentity: every knot near identity (the paper). kEvents: a
   // constant rotation over the exposure found from the events by contrast maximisation
