@@ -1099,7 +1099,8 @@ PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<
     translations[static_cast<size_t>(k)] = pose.translation();
   }
   std::vector<cv::Mat> curvatures(kRowBlocks), gradients(kRowBlocks);
-  cv::Mat rates = cv::Mat::zeros(H, W, CV_64F);  // each pixel's own rows: no two blocks share one
+  // Each pixel's row is its own block's: no two blocks write one.
+  cv::Mat rates = cv::Mat::zeros(H, W, CV_64F);
 #pragma omp parallel
   {
     std::vector<double> logs(static_cast<size_t>(V)), reference(static_cast<size_t>(V) + 1),
@@ -1111,7 +1112,6 @@ PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<
     for (int block = 0; block < kRowBlocks; ++block) {
       cv::Mat& Hm = curvatures[static_cast<size_t>(block)];
       cv::Mat& gm = gradients[static_cast<size_t>(block)];
-      cv::Mat Rm = rates(cv::Range(0, H), cv::Range::all());
       Hm = cv::Mat::zeros(H, W, CV_64F);
       gm = cv::Mat::zeros(H, W, CV_64F);
       for (int y = blockBegin(block); y < blockBegin(block + 1); ++y) {
@@ -1149,7 +1149,7 @@ PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<
               du[c] = S * ((1 - taps.ay) * (a1[c] - a[c]) + taps.ay * (b1[c] - b[c]));
               dv[c] = S * ((1 - taps.ax) * (b[c] - a[c]) + taps.ax * (b1[c] - a1[c]));
             }
-            Rm.at<double>(y, px) = std::max(Rm.at<double>(y, px), move.norm());
+            rates.at<double>(y, px) = std::max(rates.at<double>(y, px), move.norm());
             d_log[ki] = log.logSlope(grey) *
                         (nerf::greyOf(du, C) * move.x() + nerf::greyOf(dv, C) * move.y());
             at[ki] = v0 * W + u0;
