@@ -1089,8 +1089,11 @@ PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<
   const size_t N = directions_.size();
   const LogMapping& log = options_.log;
   const int lag = eventLag();
-  const double scale = 1.0 / (static_cast<double>(N) * V),
-               window_scale = lag > 0 ? 1.0 / (static_cast<double>(N) * (V - lag)) : 0.0;
+  // In the loss's units (evaluate's): as dataTerms weighs the two terms.
+  const double blur_scale = blur_weight_ / (static_cast<double>(N) * C),
+               scale = options_.beta / (static_cast<double>(N) * V),
+               window_scale =
+                   lag > 0 ? options_.beta / (static_cast<double>(N) * (V - lag)) : 0.0;
   std::vector<Matrix3> rotations(static_cast<size_t>(V));
   std::vector<Vector3> translations(static_cast<size_t>(V));
   for (int k = 0; k < V; ++k) {
@@ -1108,6 +1111,7 @@ PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<
     std::vector<double> d_reference(static_cast<size_t>(V) + 1),
         d_level(static_cast<size_t>(V) + 1), curve(static_cast<size_t>(V));
     std::vector<int> source(static_cast<size_t>(V + 1) * M), at(static_cast<size_t>(V));
+    std::vector<double> sums(3), moves(static_cast<size_t>(V) * 3);
 #pragma omp for schedule(dynamic)
     for (int block = 0; block < kRowBlocks; ++block) {
       cv::Mat& Hm = curvatures[static_cast<size_t>(block)];
@@ -1120,6 +1124,7 @@ PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<
           const size_t mid =
               (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
           const double mid_log = log.logOf(std::max(0.0, nerf::greyOf(&x[mid], C)));
+          std::fill(sums.begin(), sums.end(), 0.0);
           for (int k = 0; k < V; ++k) {
             const auto ki = static_cast<size_t>(k);
             const Vector3 Rd = rotations[ki] * directions_[pixel];
@@ -1127,6 +1132,7 @@ PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<
             const ViewSample s = viewSample(px, y, rotations[ki], t);
             double value[3];
             sampleTaps(x.data(), taps_[viewSlot(k, pixel)], value);
+            for (int c = 0; c < C; ++c) sums[static_cast<size_t>(c)] += value[c];
             const double grey = nerf::greyOf(value, C);
             logs[ki] = log.logOf(std::max(0.0, grey));
             d_log[ki] = 0;
@@ -1150,6 +1156,8 @@ PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<
               dv[c] = S * ((1 - taps.ax) * (b[c] - a[c]) + taps.ax * (b1[c] - a1[c]));
             }
             rates.at<double>(y, px) = std::max(rates.at<double>(y, px), move.norm());
+            for (int c = 0; c < C; ++c)
+              moves[ki * 3 + static_cast<size_t>(c)] = du[c] * move.x() + dv[c] * move.y();
             d_log[ki] = log.logSlope(grey) *
                         (nerf::greyOf(du, C) * move.x() + nerf::greyOf(dv, C) * move.y());
             at[ki] = v0 * W + u0;
@@ -1188,6 +1196,24 @@ PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<
             if (at[ki] < 0) continue;
             Hm.at<double>(at[ki]) += curve[ki] * d_log[ki] * d_log[ki];
             gm.at<double>(at[ki]) += d_level[ki] * d_log[ki];
+          }
+          // The blur term: the mean of the views' samples against the frame, each sample's
+          // derivative to the pixel whose depth it is taken through; the curvature of the whole
+          // mean's change goes to the pixel itself (its views' depths are its neighbours').
+          for (int c = 0; c < C; ++c) {
+            bool flat = false;
+            const double r = blurResidual(sums[static_cast<size_t>(c)] / V,
+                                          blurry_.ptr<float>(y)[px * C + c], &flat);
+            if (flat) continue;
+            double total = 0;
+            for (int k = 0; k < V; ++k) {
+              const auto ki = static_cast<size_t>(k);
+              if (at[ki] < 0) continue;
+              const double j = moves[ki * 3 + static_cast<size_t>(c)] / V;
+              total += j;
+              gm.at<double>(at[ki]) += 2 * blur_scale * r * j;
+            }
+            Hm.at<double>(y, px) += 2 * blur_scale * total * total;
           }
         }
       }

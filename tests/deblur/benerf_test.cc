@@ -1298,15 +1298,17 @@ TEST(PixelGrid, MotionGradientMatchesCentralDifferences) {
   }
 }
 
-// The event term's gradient in each mid-frame pixel's inverse depth (depthNormals) against central
-// differences of the loss with that one pixel's depth moved, over every pixel of a scene moving
-// with rotation and translation over a slanted inverse depth, with and without the sensor's
-// reference level (hysteresis), the short windows and the pseudo-Huber penalty.
+// The loss's gradient in each mid-frame pixel's inverse depth (depthNormals: the blur and event
+// terms) against central differences of the loss with that one pixel's depth moved, over every
+// pixel of a scene moving with rotation and translation over a slanted inverse depth, with and
+// without the sensor's reference level (hysteresis), the short windows and the pseudo-Huber
+// penalty, a block of the frame clipped at the top.
 TEST(PixelGrid, TheDepthGradientMatchesCentralDifferences) {
   const Threads one_thread(1);
   for (const double hysteresis : {0.0, 0.5}) {
     SCOPED_TRACE("hysteresis " + std::to_string(hysteresis));
-    const GridScene scene = gridScene(false);
+    GridScene scene = gridScene(false);
+    scene.obs.blurry.image(cv::Rect(4, 3, 8, 6)).setTo(cv::Scalar::all(1.0));  // clipped
     cv::Mat inverse_depth(18, 24, CV_32F);
     for (int y = 0; y < 18; ++y) {
       for (int x = 0; x < 24; ++x) inverse_depth.at<float>(y, x) = 0.3f + 0.01f * (x + y);
@@ -1325,11 +1327,9 @@ TEST(PixelGrid, TheDepthGradientMatchesCentralDifferences) {
     std::uniform_real_distribution<double> jitter(-0.3, 0.3);
     for (double& v : u) v += jitter(rng);
     const PixelGridProblem::DepthNormals n = problem.depthNormals(u);
-    const auto eventTerm = [&](const cv::Mat& depth) {
+    const auto loss = [&](const cv::Mat& depth) {
       const PixelGridProblem moved(scene.obs, scene.camera, scene.motion, depth, contrast, o);
-      PixelGridProblem::Terms terms;
-      moved.evaluate(u, nullptr, &terms);
-      return terms.event;
+      return moved.evaluate(u, nullptr);
     };
     cv::Mat numeric(18, 24, CV_64F);
     for (int y = 0; y < 18; ++y) {
@@ -1339,9 +1339,9 @@ TEST(PixelGrid, TheDepthGradientMatchesCentralDifferences) {
         const float rho = inverse_depth.at<float>(y, x), h = 1e-4f;
         cv::Mat depth = inverse_depth.clone();
         depth.at<float>(y, x) = rho + h;
-        const double plus = eventTerm(depth);
+        const double plus = loss(depth);
         depth.at<float>(y, x) = rho - h;
-        numeric.at<double>(y, x) = (plus - eventTerm(depth)) / (2.0 * h);
+        numeric.at<double>(y, x) = (plus - loss(depth)) / (2.0 * h);
       }
     }
     double scale = 0;

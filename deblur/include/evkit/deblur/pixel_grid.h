@@ -138,16 +138,17 @@ class PixelGridProblem {
   // The loss's gradient with respect to the knots' right perturbations (6 per knot), with the
   // image u fixed, from every `stride`-th row and column.
   Eigen::VectorXd motionGradient(const std::vector<double>& u, int stride = 1) const;
-  // The event term's gradient in each mid-frame pixel's inverse depth, and its Gauss-Newton
-  // curvature there (each comparison's samples through the depth each is taken at; the image and
-  // the motion fixed), in the units of Terms::event; CV_64F maps at the camera's size. Samples
-  // taken behind a nearer surface or across a depth edge are left out.
+  // The loss's gradient in each mid-frame pixel's inverse depth (the blur and event terms; the
+  // image and the motion fixed), and a Gauss-Newton curvature there: each view's sample is taken
+  // through the depth at one mid-frame pixel, whose derivative it takes. CV_64F maps at the
+  // camera's size, in evaluate's units. Samples taken behind a nearer surface or across a depth
+  // edge are left out.
   struct DepthNormals {
     cv::Mat curvature, gradient;
     cv::Mat move_rate;  // the most a view's sample of the pixel moves per unit of its depth (px)
   };
   DepthNormals depthNormals(const std::vector<double>& u) const;
-  // The inverse depth after one Gauss-Newton step of the event term in it, each pixel's step the
+  // The inverse depth after one Gauss-Newton step of the loss in it, each pixel's step the
   // least squares of one change over the (2 radius + 1)^2 pixels around it (their normals summed).
   cv::Mat refinedInverseDepth(const std::vector<double>& u, int radius) const;
   const cv::Mat& inverseDepth() const { return inverse_depth_; }
