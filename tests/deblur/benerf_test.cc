@@ -385,6 +385,22 @@ std::optional<Observation> prerolledNatural(const std::string& scene, uint64_t s
   return halfSizeNatural(scene, scene_options, o, seed, blur_px, rotation_share);
 }
 
+// The true motion over the exposure as seen from the mid-exposure camera (each true pose relative
+// to the one nearest mid-exposure), as the grid's trajectories are.
+Trajectory trueMotionFromMid(const Observation& obs) {
+  const int64_t t0 = obs.blurry.exposure_start_us, t1 = obs.blurry.exposure_end_us,
+                mid_us = obs.blurry.midExposure();
+  const auto mid = std::min_element(
+      obs.gt_poses.begin(), obs.gt_poses.end(), [&](const StampedPose& a, const StampedPose& b) {
+        return std::llabs(a.t_us - mid_us) < std::llabs(b.t_us - mid_us);
+      });
+  std::vector<StampedPose> relative;
+  for (const StampedPose& p : obs.gt_poses) {
+    if (p.t_us >= t0 && p.t_us <= t1) relative.push_back({p.t_us, mid->pose.inverse() * p.pose});
+  }
+  return fitTrajectory(TrajectoryKind::kCubicSE3, 8, t0, t1, relative);
+}
+
 // The registration's image motion against the truth's (exposureMotionErrorPx) over the pixels
 // that `mask` marks.
 double imageMotionError(const ExposureMotion& m, const Observation& obs, const cv::Mat& mask) {
@@ -1375,17 +1391,8 @@ TEST(PixelGrid, TheDepthStepMovesAWrongDepthTowardsTheScenes) {
   if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
   const Observation& obs = *natural;
   const nerf::PinholeCamera camera = obs.camera.withSize(174, 130);
-  const int64_t t0 = obs.blurry.exposure_start_us, t1 = obs.blurry.exposure_end_us,
-                mid_us = obs.blurry.midExposure();
-  const auto mid = std::min_element(
-      obs.gt_poses.begin(), obs.gt_poses.end(), [&](const StampedPose& a, const StampedPose& b) {
-        return std::llabs(a.t_us - mid_us) < std::llabs(b.t_us - mid_us);
-      });
-  std::vector<StampedPose> relative;
-  for (const StampedPose& p : obs.gt_poses) {
-    if (p.t_us >= t0 && p.t_us <= t1) relative.push_back({p.t_us, mid->pose.inverse() * p.pose});
-  }
-  const Trajectory true_motion = fitTrajectory(TrajectoryKind::kCubicSE3, 8, t0, t1, relative);
+  const int64_t mid_us = obs.blurry.midExposure();
+  const Trajectory true_motion = trueMotionFromMid(obs);
   cv::Mat truth;
   cv::divide(1.0, obs.gt_depth, truth, CV_32F);
   cv::Mat wrong = truth.clone();
@@ -1855,16 +1862,7 @@ TEST(Benerf, TheThresholdsFromTheCountsAreNotBiasedByNoiseEvents) {
   EXPECT_NEAR(clean.c, truth, 0.1 * truth);
   EXPECT_NEAR(with_noise.c, clean.c, 0.05 * clean.c);
   // Along the true motion: each true pose as seen from the mid-exposure camera.
-  const int64_t mid_us = obs.blurry.midExposure();
-  const auto mid = std::min_element(
-      obs.gt_poses.begin(), obs.gt_poses.end(), [&](const StampedPose& a, const StampedPose& b) {
-        return std::llabs(a.t_us - mid_us) < std::llabs(b.t_us - mid_us);
-      });
-  std::vector<StampedPose> relative;
-  for (const StampedPose& p : obs.gt_poses) {
-    if (p.t_us >= t0 && p.t_us <= t1) relative.push_back({p.t_us, mid->pose.inverse() * p.pose});
-  }
-  const Trajectory true_motion = fitTrajectory(TrajectoryKind::kCubicSE3, 8, t0, t1, relative);
+  const Trajectory true_motion = trueMotionFromMid(obs);
   ASSERT_EQ(obs.gt_depth.size(), obs.blurry.image.size());
   cv::Mat true_inverse_depth;
   cv::divide(1.0, obs.gt_depth, true_inverse_depth, CV_32F);
