@@ -1092,8 +1092,7 @@ PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<
   // In the loss's units (evaluate's): as dataTerms weighs the two terms.
   const double blur_scale = blur_weight_ / (static_cast<double>(N) * C),
                scale = options_.beta / (static_cast<double>(N) * V),
-               window_scale =
-                   lag > 0 ? options_.beta / (static_cast<double>(N) * (V - lag)) : 0.0;
+               window_scale = lag > 0 ? options_.beta / (static_cast<double>(N) * (V - lag)) : 0.0;
   std::vector<Matrix3> rotations(static_cast<size_t>(V));
   std::vector<Vector3> translations(static_cast<size_t>(V));
   for (int k = 0; k < V; ++k) {
