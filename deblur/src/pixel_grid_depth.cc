@@ -1,0 +1,232 @@
+// The pixel grid's inverse depth from its solved image (BenerfOptions::depth_steps): the loss's
+// gradient and a Gauss-Newton curvature in each mid-frame pixel's depth, the step they give over a
+// window of pixels, and the solved image carried into a problem rebuilt on the new depth.
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <opencv2/imgproc.hpp>
+
+#include "evkit/deblur/pixel_grid.h"
+#include "evkit/nerf/volume_render.h"
+#include "pixel_grid_geometry.h"
+
+namespace evkit {
+
+using pixel_grid_detail::Taps;
+
+PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<double>& u) const {
+  // A view's sample of pixel (x, y) is taken through the inverse depth at the mid-frame pixel
+  // nearest where the first lookup landed (reproject): its comparison's derivative goes to that
+  // pixel, dq / drho there being moveRate's. Accumulated by row blocks, each block's maps summed in
+  // block order (the same bits at any thread count).
+  const std::vector<double> x = intensities(u);
+  const int W = camera_.width, H = camera_.height, C = channels_, S = options_.subdivision,
+            V = views_, M = referencePlays();
+  const size_t N = directions_.size();
+  const LogMapping& log = options_.log;
+  const int lag = eventLag();
+  // In the loss's units (evaluate's): as dataTerms weighs the two terms.
+  const double blur_scale = blur_weight_ / (static_cast<double>(N) * C),
+               scale = options_.beta / (static_cast<double>(N) * V),
+               window_scale = lag > 0 ? options_.beta / (static_cast<double>(N) * (V - lag)) : 0.0;
+  std::vector<Matrix3> rotations(static_cast<size_t>(V));
+  std::vector<Vector3> translations(static_cast<size_t>(V));
+  for (int k = 0; k < V; ++k) {
+    const SE3 pose = motion_.poseAt(times_us_[static_cast<size_t>(k)]);
+    rotations[static_cast<size_t>(k)] = pose.rotationMatrix();
+    translations[static_cast<size_t>(k)] = pose.translation();
+  }
+  std::vector<cv::Mat> curvatures(kRowBlocks), gradients(kRowBlocks);
+  // Each pixel's row is its own block's: no two blocks write one.
+  cv::Mat rates = cv::Mat::zeros(H, W, CV_64F);
+#pragma omp parallel
+  {
+    std::vector<double> logs(static_cast<size_t>(V)), reference(static_cast<size_t>(V) + 1),
+        d_log(static_cast<size_t>(V));
+    std::vector<double> d_reference(static_cast<size_t>(V) + 1),
+        d_level(static_cast<size_t>(V) + 1), curve(static_cast<size_t>(V));
+    std::vector<int> source(static_cast<size_t>(V + 1) * M), at(static_cast<size_t>(V));
+    std::vector<double> sums(3), moves(static_cast<size_t>(V) * 3);
+#pragma omp for schedule(dynamic)
+    for (int block = 0; block < kRowBlocks; ++block) {
+      cv::Mat& Hm = curvatures[static_cast<size_t>(block)];
+      cv::Mat& gm = gradients[static_cast<size_t>(block)];
+      Hm = cv::Mat::zeros(H, W, CV_64F);
+      gm = cv::Mat::zeros(H, W, CV_64F);
+      for (int y = blockBegin(block); y < blockBegin(block + 1); ++y) {
+        for (int px = 0; px < W; ++px) {
+          const size_t pixel = static_cast<size_t>(y) * W + px;
+          const size_t mid =
+              (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
+          const double mid_log = log.logOf(std::max(0.0, nerf::greyOf(&x[mid], C)));
+          std::fill(sums.begin(), sums.end(), 0.0);
+          for (int k = 0; k < V; ++k) {
+            const auto ki = static_cast<size_t>(k);
+            const Vector3 Rd = rotations[ki] * directions_[pixel];
+            const Vector3& t = translations[ki];
+            const ViewSample s = viewSample(px, y, rotations[ki], t);
+            double value[3];
+            sampleTaps(x.data(), taps_[viewSlot(k, pixel)], value);
+            for (int c = 0; c < C; ++c) sums[static_cast<size_t>(c)] += value[c];
+            const double grey = nerf::greyOf(value, C);
+            logs[ki] = log.logOf(std::max(0.0, grey));
+            d_log[ki] = 0;
+            at[ki] = -1;
+            if (s.behind || s.across || !(grey > 0)) continue;
+            // The first lookup, whose landing picks the depth the sample is taken through.
+            const double rho0 = pixel_grid_detail::inverseDepthAt(camera_, inverse_depth_, px, y);
+            const Eigen::Vector2d q0 = nerf::projectPoint(camera_, Rd + rho0 * t);
+            const int u0 = pixel_grid_detail::nearestIndex(q0.x(), W),
+                      v0 = pixel_grid_detail::nearestIndex(q0.y(), H);
+            if (inverse_depth_.at<float>(v0, u0) != s.rho) continue;  // another surface's
+            Eigen::Vector2d move;
+            if (pixel_grid_detail::moveRate(camera_, Rd, t, s.rho, &move) < 0) continue;
+            const Taps taps = tapsOf(s.q, false);
+            const std::array<size_t, 4> c4 = corners(taps);
+            const double *a = x.data() + c4[0] * C, *a1 = x.data() + c4[1] * C,
+                         *b = x.data() + c4[2] * C, *b1 = x.data() + c4[3] * C;
+            double du[3], dv[3];
+            for (int c = 0; c < C; ++c) {
+              du[c] = S * ((1 - taps.ay) * (a1[c] - a[c]) + taps.ay * (b1[c] - b[c]));
+              dv[c] = S * ((1 - taps.ax) * (b[c] - a[c]) + taps.ax * (b1[c] - a1[c]));
+            }
+            rates.at<double>(y, px) = std::max(rates.at<double>(y, px), move.norm());
+            for (int c = 0; c < C; ++c)
+              moves[ki * 3 + static_cast<size_t>(c)] = du[c] * move.x() + dv[c] * move.y();
+            d_log[ki] = log.logSlope(grey) *
+                        (nerf::greyOf(du, C) * move.x() + nerf::greyOf(dv, C) * move.y());
+            at[ki] = v0 * W + u0;
+          }
+          // The comparisons as dataTerms makes them (each view against mid-exposure, robust; each
+          // view `lag` views on against it, squares), their gradient through the references to
+          // each view's level (referenceGradient); the curvature as if each view's level were its
+          // own reference.
+          referenceLevels(logs.data(), mid_log, reference.data(), source.data());
+          std::fill(d_reference.begin(), d_reference.end(), 0.0);
+          std::fill(curve.begin(), curve.end(), 0.0);
+          const bool across = across_pixels_[pixel] != 0;
+          for (int k = 0; k < V; ++k) {
+            const auto a = static_cast<size_t>(k);
+            if (across && across_[viewSlot(k, pixel)]) continue;
+            const double r =
+                reference[a] - reference[static_cast<size_t>(V)] - change_[viewSlot(k, pixel)];
+            double weight;
+            eventPenalty(r, &weight);
+            d_reference[a] += 2 * scale * weight * r;
+            d_reference[static_cast<size_t>(V)] -= 2 * scale * weight * r;
+            curve[a] += 2 * scale * weight;
+            if (lag == 0 || k + lag >= V) continue;
+            const auto b = static_cast<size_t>(k + lag);
+            if (across && across_[viewSlot(k + lag, pixel)]) continue;
+            const double rw = reference[b] - change_[viewSlot(k + lag, pixel)] -
+                              (reference[a] - change_[viewSlot(k, pixel)]);
+            d_reference[b] += 2 * window_scale * rw;
+            d_reference[a] -= 2 * window_scale * rw;
+            curve[a] += 2 * window_scale;
+            curve[b] += 2 * window_scale;
+          }
+          referenceGradient(d_reference.data(), source.data(), d_level.data());
+          for (int k = 0; k < V; ++k) {
+            const auto ki = static_cast<size_t>(k);
+            if (at[ki] < 0) continue;
+            Hm.at<double>(at[ki]) += curve[ki] * d_log[ki] * d_log[ki];
+            gm.at<double>(at[ki]) += d_level[ki] * d_log[ki];
+          }
+          // The blur term: the mean of the views' samples against the frame, each sample's
+          // derivative to the pixel whose depth it is taken through; the curvature of the whole
+          // mean's change goes to the pixel itself (its views' depths are its neighbours').
+          for (int c = 0; c < C; ++c) {
+            bool flat = false;
+            const double r = blurResidual(sums[static_cast<size_t>(c)] / V,
+                                          blurry_.ptr<float>(y)[px * C + c], &flat);
+            if (flat) continue;
+            double total = 0;
+            for (int k = 0; k < V; ++k) {
+              const auto ki = static_cast<size_t>(k);
+              if (at[ki] < 0) continue;
+              const double j = moves[ki * 3 + static_cast<size_t>(c)] / V;
+              total += j;
+              gm.at<double>(at[ki]) += 2 * blur_scale * r * j;
+            }
+            Hm.at<double>(y, px) += 2 * blur_scale * total * total;
+          }
+        }
+      }
+    }
+  }
+  DepthNormals out{cv::Mat::zeros(H, W, CV_64F), cv::Mat::zeros(H, W, CV_64F), rates};
+  for (int block = 0; block < kRowBlocks; ++block) {
+    out.curvature += curvatures[static_cast<size_t>(block)];
+    out.gradient += gradients[static_cast<size_t>(block)];
+  }
+  return out;
+}
+
+cv::Mat PixelGridProblem::refinedInverseDepth(const std::vector<double>& u, int radius) const {
+  // The most a step may move a view's sample of a pixel: half a pixel, the cells' resolution,
+  // within which the image's derivative holds.
+  constexpr double kMostMovePx = 0.5;
+  const DepthNormals n = depthNormals(u);
+  cv::Mat curvature, gradient;
+  const cv::Size window(2 * radius + 1, 2 * radius + 1);
+  cv::boxFilter(n.curvature, curvature, CV_64F, window, cv::Point(-1, -1), false,
+                cv::BORDER_CONSTANT);
+  cv::boxFilter(n.gradient, gradient, CV_64F, window, cv::Point(-1, -1), false,
+                cv::BORDER_CONSTANT);
+  // Levenberg's damping: a thousandth of the windows' mean curvature, so that a window that the
+  // events barely see keeps its depth.
+  const double damping = 1e-3 * cv::mean(curvature)[0];
+  cv::Mat out = inverse_depth_.clone();
+  for (int y = 0; y < out.rows; ++y) {
+    for (int x = 0; x < out.cols; ++x) {
+      const double rho = inverse_depth_.at<float>(y, x);
+      const double h = curvature.at<double>(y, x);
+      if (!(h + damping > 0)) continue;
+      const double most =
+          n.move_rate.at<double>(y, x) > 0 ? kMostMovePx / n.move_rate.at<double>(y, x) : 0.0;
+      const double step = std::clamp(-gradient.at<double>(y, x) / (h + damping), -most, most);
+      out.at<float>(y, x) = static_cast<float>(std::max(rho + step, 0.0));
+    }
+  }
+  return out;
+}
+
+std::vector<double> PixelGridProblem::carriedFrom(const PixelGridProblem& other,
+                                                  const std::vector<double>& u) const {
+  std::vector<double> x = start(other.render(u, mid_us_));
+  const int C = channels_, S = options_.subdivision;
+  const int shift = (margin_ - other.margin_) * S;  // this canvas's cell i is other's i - shift
+  for (int j = 0; j < canvas_h_; ++j) {
+    const int oj = j - shift;
+    if (oj < 0 || oj >= other.canvas_h_) continue;
+    for (int i = 0; i < canvas_w_; ++i) {
+      const int oi = i - shift;
+      if (oi < 0 || oi >= other.canvas_w_) continue;
+      for (int c = 0; c < C; ++c) {
+        x[(static_cast<size_t>(j) * canvas_w_ + i) * C + c] =
+            u[(static_cast<size_t>(oj) * other.canvas_w_ + oi) * C + c];
+      }
+    }
+  }
+  // The layer behind: each of this one's cells that the other held.
+  if (!layered() || !other.layered()) return x;
+  std::vector<int> slot_of(static_cast<size_t>(other.behind_w_) * other.behind_h_, -1);
+  for (size_t slot = 0; slot < other.behind_cell_.size(); ++slot)
+    slot_of[static_cast<size_t>(other.behind_cell_[slot])] = static_cast<int>(slot);
+  const int behind_shift = margin_ - other.margin_;
+  const size_t first = static_cast<size_t>(canvas_w_) * canvas_h_ * C,
+               other_first = static_cast<size_t>(other.canvas_w_) * other.canvas_h_ * C;
+  for (size_t slot = 0; slot < behind_cell_.size(); ++slot) {
+    const int cell = behind_cell_[slot];
+    const int ox = cell % behind_w_ - behind_shift, oy = cell / behind_w_ - behind_shift;
+    if (ox < 0 || oy < 0 || ox >= other.behind_w_ || oy >= other.behind_h_) continue;
+    const int from = slot_of[static_cast<size_t>(oy) * other.behind_w_ + ox];
+    if (from < 0) continue;
+    for (int c = 0; c < C; ++c)
+      x[first + slot * C + c] = u[other_first + static_cast<size_t>(from) * C + c];
+  }
+  return x;
+}
+
+}  // namespace evkit
