@@ -152,8 +152,9 @@ class PixelGridProblem {
   // least squares of one change over the (2 radius + 1)^2 pixels around it (their normals summed).
   cv::Mat refinedInverseDepth(const std::vector<double>& u, int radius) const;
   const cv::Mat& inverseDepth() const { return inverse_depth_; }
-  // The solved canvas of `other` (a problem on the same frame), each cell where this one holds it,
-  // the rest (and the layer behind) from this problem's start at its mid frame.
+  // The solved canvas of `other` (a problem on the same frame) in this one's layout: each cell and
+  // each cell of the layer behind that both hold, the rest from this problem's start at the
+  // other's rendered mid frame.
   std::vector<double> carriedFrom(const PixelGridProblem& other,
                                   const std::vector<double>& u) const;
   const Trajectory& motion() const { return motion_; }
