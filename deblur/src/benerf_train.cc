@@ -897,11 +897,10 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     iterations = problem->solve(x, steps, &terms, deadline, progress, convergedIn(0));
   // The depth from the solved image (BenerfOptions::depth_steps), before the motion's rounds.
   int depth_kept = 0;
-  for (int step = 0; step < (keep_start ? 0 : o.depth_steps) && Clock::now() < deadline; ++step) {
-    if (!stepDepth(problem, x, obs, camera, contrast, po)) break;
-    inverse_depth = problem->inverseDepth().clone();
+  while (depth_kept < (keep_start ? 0 : o.depth_steps) && Clock::now() < deadline &&
+         stepDepth(problem, x, obs, camera, contrast, po))
     ++depth_kept;
-  }
+  if (depth_kept > 0) inverse_depth = problem->inverseDepth();
   result.parameters["depth_steps_kept"] = depth_kept;
   for (int round = 1; round <= rounds && Clock::now() < deadline; ++round) {
     problem->refineMotion(x, kRoundMotionSteps);
