@@ -5,7 +5,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
-#include <opencv2/imgproc.hpp>
+#include <opencv2/core.hpp>
 
 #include "evkit/deblur/pixel_grid.h"
 #include "evkit/nerf/volume_render.h"
@@ -168,12 +168,28 @@ cv::Mat PixelGridProblem::refinedInverseDepth(const std::vector<double>& u, int 
   // within which the image's derivative holds.
   constexpr double kMostMovePx = 0.5;
   const DepthNormals n = depthNormals(u);
-  cv::Mat curvature, gradient;
-  const cv::Size window(2 * radius + 1, 2 * radius + 1);
-  cv::boxFilter(n.curvature, curvature, CV_64F, window, cv::Point(-1, -1), false,
-                cv::BORDER_CONSTANT);
-  cv::boxFilter(n.gradient, gradient, CV_64F, window, cv::Point(-1, -1), false,
-                cv::BORDER_CONSTANT);
+  // Each window sums the pixels of the centre's own surface: those whose depth differs from the
+  // centre's by under kDepthEdgePx of parallax, at the faster of the two pixels' move rates.
+  const int W = inverse_depth_.cols, H = inverse_depth_.rows;
+  cv::Mat curvature = cv::Mat::zeros(H, W, CV_64F), gradient = cv::Mat::zeros(H, W, CV_64F);
+#pragma omp parallel for schedule(static)
+  for (int y = 0; y < H; ++y) {
+    for (int x = 0; x < W; ++x) {
+      const double rho = inverse_depth_.at<float>(y, x), rate = n.move_rate.at<double>(y, x);
+      double h = 0, g = 0;
+      for (int j = std::max(0, y - radius); j <= std::min(H - 1, y + radius); ++j) {
+        for (int i = std::max(0, x - radius); i <= std::min(W - 1, x + radius); ++i) {
+          const double parallax = std::abs(inverse_depth_.at<float>(j, i) - rho) *
+                                  std::max(rate, n.move_rate.at<double>(j, i));
+          if (!(parallax < pixel_grid_detail::kDepthEdgePx)) continue;
+          h += n.curvature.at<double>(j, i);
+          g += n.gradient.at<double>(j, i);
+        }
+      }
+      curvature.at<double>(y, x) = h;
+      gradient.at<double>(y, x) = g;
+    }
+  }
   // Levenberg's damping: a thousandth of the windows' mean curvature, so that a window that the
   // events barely see keeps its depth.
   const double damping = 1e-3 * cv::mean(curvature)[0];

@@ -1383,8 +1383,9 @@ TEST(PixelGrid, TheDepthGradientMatchesCentralDifferences) {
 // The step in the inverse depth from the solved image: a rocket at 2 m before a backdrop at 10 m
 // (half the natural suite's size, 25 px of blur, 30% of it from translation), seen along the true
 // motion from the true mid-exposure frame, its depth put 25% off the truth in a checkerboard of
-// 16 px tiles (nearer and farther). One step takes a fifth of that error out (each sample moves by
-// at most half a pixel a step), and the grid's loss at that image falls.
+// 16 px tiles (nearer and farther). One step takes two fifths of that error out (each sample moves
+// by at most half a pixel a step, each window sums only the tiles of its centre's depth), and the
+// grid's loss at that image falls.
 TEST(PixelGrid, TheDepthStepMovesAWrongDepthTowardsTheScenes) {
   if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   const auto natural = naturalObservation("hubble_rocket", 1, 25);
@@ -1422,7 +1423,8 @@ TEST(PixelGrid, TheDepthStepMovesAWrongDepthTowardsTheScenes) {
   const double before = meanError(wrong), after = meanError(depth);
   std::printf("depth error %.4f -> %.4f, loss %.6g -> %.6g\n", before, after, loss_before,
               loss_after);
-  EXPECT_LT(after, 0.85 * before);  // measured 0.225 -> 0.175
+  // Measured 0.225 -> 0.133; 0.173 with windows that also summed the squares across their edges.
+  EXPECT_LT(after, 0.7 * before);
   EXPECT_LT(loss_after, loss_before);
 }
 

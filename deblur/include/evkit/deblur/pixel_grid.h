@@ -149,7 +149,8 @@ class PixelGridProblem {
   };
   DepthNormals depthNormals(const std::vector<double>& u) const;
   // The inverse depth after one Gauss-Newton step of the loss in it, each pixel's step the
-  // least squares of one change over the (2 radius + 1)^2 pixels around it (their normals summed).
+  // least squares of one change over the (2 radius + 1)^2 pixels around it that lie on its own
+  // surface (their normals summed; a depth edge's other side left out).
   cv::Mat refinedInverseDepth(const std::vector<double>& u, int radius) const;
   const cv::Mat& inverseDepth() const { return inverse_depth_; }
   // The solved canvas of `other` (a problem on the same frame) in this one's layout: each cell and
