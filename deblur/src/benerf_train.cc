@@ -523,7 +523,7 @@ constexpr int kRoundMotionSteps = 3;
 constexpr double kRoundConverged = 1e-2;
 
 // One step of the grid's inverse depth from the solved image (BenerfOptions::depth_steps): a
-// Gauss-Newton step of the loss in it, over 9 x 9 pixels at a time, each pixel's sample moved
+// Gauss-Newton step of the loss in it, over 9 x 9 pixels of one surface, each pixel's sample moved
 // by at most half a pixel (PixelGridProblem::refinedInverseDepth), kept where it lowers the grid's
 // loss at that image. Both sides are rebuilt, on the refined depth and on the same depth, the image
 // carried over (PixelGridProblem::carriedFrom): the problem in hand took its views from the motion

@@ -75,8 +75,8 @@ PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<
             at[ki] = -1;
             if (s.behind || s.across || !(grey > 0)) continue;
             // The first lookup, whose landing picks the depth the sample is taken through.
-            const double rho0 = pixel_grid_detail::inverseDepthAt(camera_, inverse_depth_, px, y);
-            const Eigen::Vector2d q0 = nerf::projectPoint(camera_, Rd + rho0 * t);
+            const Eigen::Vector2d q0 =
+                pixel_grid_detail::firstLanding(camera_, inverse_depth_, px, y, Rd, t);
             const int u0 = pixel_grid_detail::nearestIndex(q0.x(), W),
                       v0 = pixel_grid_detail::nearestIndex(q0.y(), H);
             if (inverse_depth_.at<float>(v0, u0) != s.rho) continue;  // another surface's

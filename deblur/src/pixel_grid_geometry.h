@@ -58,15 +58,20 @@ inline double inverseDepthAt(const PinholeCamera& camera, const cv::Mat& inverse
   return inverse_depth.at<float>(nearestIndex(v, camera.height), nearestIndex(u, camera.width));
 }
 
-// Where pixel (x, y), ray direction R d in the mid-exposure camera (d its own), is seen by the
-// camera at the pose (R, t): its point at the mid frame's inverse depth there, then once more at
-// the inverse depth where that lands (the view and the mid frame see nearly the same point);
-// rho_used: the second.
+// Where pixel (x, y), ray direction R d in the mid-exposure camera (d its own), first lands in the
+// camera at the pose (R, t): its point at the mid frame's inverse depth there. The nearest pixel
+// to that landing gives the depth the sample is taken through (reproject).
+inline Eigen::Vector2d firstLanding(const PinholeCamera& camera, const cv::Mat& inverse_depth,
+                                    int x, int y, const Vector3& Rd, const Vector3& t) {
+  return nerf::projectPoint(camera, Rd + inverseDepthAt(camera, inverse_depth, x, y) * t);
+}
+
+// Where that pixel is seen by the camera at (R, t): once more at the inverse depth where the first
+// landing lies (the view and the mid frame see nearly the same point); rho_used: that depth.
 inline Eigen::Vector2d reproject(const PinholeCamera& camera, const cv::Mat& inverse_depth, int x,
                                  int y, const Vector3& Rd, const Vector3& t, double* rho_used) {
-  double rho = inverseDepthAt(camera, inverse_depth, x, y);
-  const Eigen::Vector2d q = nerf::projectPoint(camera, Rd + rho * t);
-  rho = inverseDepthAt(camera, inverse_depth, q.x(), q.y());
+  const Eigen::Vector2d q = firstLanding(camera, inverse_depth, x, y, Rd, t);
+  const double rho = inverseDepthAt(camera, inverse_depth, q.x(), q.y());
   if (rho_used) *rho_used = rho;
   return nerf::projectPoint(camera, Rd + rho * t);
 }

@@ -135,10 +135,10 @@ struct BenerfOptions {
   int motion_rounds = 1;
   // Before those rounds the pixel grid refines its inverse depth from the solved image this many
   // times: a Gauss-Newton step of its loss (both terms) in each pixel's inverse depth (one change
-  // over each 9 x 9 pixels, the samples moved by at most half a pixel), kept where the loss falls.
-  // The registration's depth is per tile from EDI's noisy frames; the grid's terms see every
-  // pixel. Measured at `fast` against 0 (BENCHMARKS.md, "The depth from the solved image"):
-  // natural suite 38.96 -> 39.14 dB (36.45 -> 36.91 over the exposure), no scene down.
+  // over the 9 x 9 pixels of each pixel's own surface, the samples moved by at most half a pixel),
+  // kept where the loss falls. The registration's depth is per tile from EDI's noisy frames; the
+  // grid's terms see every pixel. Measured at `fast` against 0 (BENCHMARKS.md, "The depth from the
+  // solved image"): natural suite 38.96 -> 39.15 dB (36.45 -> 36.95 over the exposure).
   int depth_steps = 1;
   double knot_init = 0.01;  // knots start at exp(u), u uniform in [-knot_init, knot_init]^6
   // Where the trajectory starts. kIdentity: every knot near identity (the paper). kEvents: a
