@@ -63,23 +63,23 @@ double PixelGridProblem::eventPenalty(double r, double* weight) const {
   return 2 * d * d * (root - 1);
 }
 
-void PixelGridProblem::referenceLevels(const double* logs, double mid_log, double* reference,
-                                       int* source) const {
-  const int V = views_, M = referencePlays();
-  const auto level = [&](int i) { return i == V ? mid_log : logs[i]; };
+void PixelGridProblem::referenceLevels(const double* levels, const int* order, int count,
+                                       double* reference, int* source) const {
+  const int M = referencePlays();
   if (M == 1) {  // no play: each sample's own level (a tie with the one before stays its own)
-    for (int i = 0; i <= V; ++i) {
-      reference[i] = level(i);
+    for (int s = 0; s < count; ++s) {
+      const int i = order[s];
+      reference[i] = levels[i];
       source[i] = i;
     }
     return;
   }
   // The plays side by side, sample by sample (each sample's level and band read once).
   double before[kReferencePlays];
-  int* from = source + static_cast<size_t>(sampleInTimeOrder(0)) * M;
+  int* from = source + static_cast<size_t>(order[0]) * M;
   {
-    const int i = sampleInTimeOrder(0);
-    const double l = level(i);
+    const int i = order[0];
+    const double l = levels[i];
     double sum = 0;
     for (int m = 0; m < M; ++m) {
       // The play's start: the first sample's level less an offset at the midpoint of the m-th of
@@ -90,9 +90,9 @@ void PixelGridProblem::referenceLevels(const double* logs, double mid_log, doubl
     }
     reference[i] = sum / M;
   }
-  for (int s = 1; s <= V; ++s) {
-    const int i = sampleInTimeOrder(s);
-    const double l = level(i), low = l - band_up_, high = l + band_down_;
+  for (int s = 1; s < count; ++s) {
+    const int i = order[s];
+    const double l = levels[i], low = l - band_up_, high = l + band_down_;
     int* const previous = from;
     from = source + static_cast<size_t>(i) * M;
     double sum = 0;
@@ -112,19 +112,20 @@ void PixelGridProblem::referenceLevels(const double* logs, double mid_log, doubl
   }
 }
 
-void PixelGridProblem::referenceGradient(const double* d_reference, const int* source,
-                                         double* d_level) const {
-  const int V = views_, M = referencePlays();
+void PixelGridProblem::referenceGradient(const double* d_reference, const int* order, int count,
+                                         const int* source, double* d_level) const {
+  const int M = referencePlays();
+  std::fill(d_level, d_level + 2 * views_, 0.0);
   if (M == 1) {
-    std::copy(d_reference, d_reference + V + 1, d_level);
+    for (int s = 0; s < count; ++s) d_level[order[s]] = d_reference[order[s]];
     return;
   }
   // A play holds its source's level over a run of samples in time order, the source first. From
   // the last sample back, each sample's share is carried until its run's source, which takes it
   // (no sample's level is written more than once).
   double carry[kReferencePlays] = {};
-  for (int s = V; s >= 0; --s) {
-    const int i = sampleInTimeOrder(s);
+  for (int s = count - 1; s >= 0; --s) {
+    const int i = order[s];
     const double share = d_reference[i] / M;
     const int* from = source + static_cast<size_t>(i) * M;
     double own = 0;
@@ -137,6 +138,21 @@ void PixelGridProblem::referenceGradient(const double* d_reference, const int* s
     }
     d_level[i] = own;
   }
+}
+
+int PixelGridProblem::sampleOrder(const BlurQuadrature& quadrature, int* order) const {
+  const int V = views_;
+  const bool between = referencePlays() > 1;
+  int count = 0;
+  for (int k = 0; k < V; ++k) {
+    if (k == mid_slot_) order[count++] = V;  // before the first view not before it
+    order[count++] = k;
+    // The sample between views k and k + 1, but for the one at mid-exposure's time (V even).
+    if (between && k + 1 < V && quadrature.sampled[static_cast<size_t>(k)] && 2 * (k + 1) != V)
+      order[count++] = V + 1 + k;
+  }
+  if (mid_slot_ == V) order[count++] = V;
+  return count;
 }
 
 double dimFrameWeight(const cv::Mat& blurry, double dim_frame) {
@@ -179,6 +195,12 @@ PixelGridProblem::PixelGridProblem(const Observation& obs, const PinholeCamera& 
   }
   mid_slot_ = static_cast<int>(
       std::count_if(times_us_.begin(), times_us_.end(), [&](int64_t t) { return t < mid_us_; }));
+  const double gap = options_.subdivision * (2 * blur_px_ / views_ + 1);
+  // No samples between views where the views are at most between_views_px apart along the longest
+  // path (on the natural suite's 15 px frames, views 0.48 px apart at `fast`, they moved no frame
+  // by more than 0.04 dB and took 1.2-1.8 times as long; BENCHMARKS.md, "The samples between the
+  // views").
+  between_gap_ = blur_px_ / views_ > options_.between_views_px ? gap * gap : -1.0;
   band_up_ = std::max(0.0, options_.hysteresis) * contrast.on;
   band_down_ = std::max(0.0, options_.hysteresis) * contrast.off;
 
@@ -306,6 +328,79 @@ double PixelGridProblem::blurResidual(double mean, float frame, bool* flat) cons
   const bool above = clipped(frame) && mean >= frame;
   if (flat) *flat = above;
   return above ? 0.0 : mean - frame;
+}
+
+void PixelGridProblem::sampleSlopes(const double* x, const Taps& t, double* value, double* du,
+                                    double* dv) const {
+  const std::array<size_t, 4> at = corners(t);  // top-left, top-right, bottom-left, bottom-right
+  const double *a = x + at[0] * channels_, *a1 = x + at[1] * channels_, *b = x + at[2] * channels_,
+               *b1 = x + at[3] * channels_;
+  const int cells = behind(t) ? 1 : options_.subdivision;  // per pixel: the layer behind has one
+  for (int c = 0; c < channels_; ++c) {
+    value[c] =
+        (1 - t.ay) * ((1 - t.ax) * a[c] + t.ax * a1[c]) + t.ay * ((1 - t.ax) * b[c] + t.ax * b1[c]);
+    du[c] = cells * ((1 - t.ay) * (a1[c] - a[c]) + t.ay * (b1[c] - b[c]));
+    dv[c] = cells * ((1 - t.ax) * (b[c] - a[c]) + t.ax * (b1[c] - a1[c]));
+  }
+}
+
+void PixelGridProblem::blurQuadrature(const Taps* taps, BlurQuadrature& out) const {
+  const int V = views_;
+  out.view_weight.resize(static_cast<size_t>(V));
+  out.between.resize(static_cast<size_t>(std::max(0, V - 1)));
+  out.sampled.resize(out.between.size());
+  if (V == 1) {
+    out.view_weight[0] = 1;
+    return;
+  }
+  if (!(between_gap_ >= 0)) {  // the views alone, each a V-th
+    std::fill(out.view_weight.begin(), out.view_weight.end(), 1.0 / V);
+    std::fill(out.sampled.begin(), out.sampled.end(), uint8_t{0});
+    return;
+  }
+  const double half = 0.5 / V;
+  out.between_weight = half;
+  for (int k = 0; k < V; ++k)
+    out.view_weight[static_cast<size_t>(k)] = k == 0 || k == V - 1 ? 1.5 * half : half;
+  for (int k = 0; k + 1 < V; ++k) {
+    const auto i = static_cast<size_t>(k);
+    const Taps &a = taps[k], &b = taps[k + 1];
+    out.sampled[i] = 0;
+    if (!behind(a) && !behind(b)) {
+      const double au = a.index % canvas_w_ + a.ax, av = a.index / canvas_w_ + a.ay,
+                   bu = b.index % canvas_w_ + b.ax, bv = b.index / canvas_w_ + b.ay;
+      if ((au - bu) * (au - bu) + (av - bv) * (av - bv) <= between_gap_) {
+        out.between[i] =
+            pixel_grid_detail::tapsAt(0.5 * (au + bu), 0.5 * (av + bv), canvas_w_, canvas_h_);
+        out.sampled[i] = 1;
+        continue;
+      }
+    }
+    out.view_weight[i] += 0.5 * half;  // the mean of the two stands for the sample between
+    out.view_weight[i + 1] += 0.5 * half;
+  }
+}
+
+void PixelGridProblem::sampleBetween(const double* x, const BlurQuadrature& quadrature,
+                                     double* between) const {
+  for (size_t i = 0; i < quadrature.between.size(); ++i) {
+    if (quadrature.sampled[i])
+      sample(x, canvas_w_, channels_, quadrature.between[i], between + i * channels_);
+  }
+}
+
+void PixelGridProblem::blurMean(const double* colours, const double* between,
+                                const BlurQuadrature& quadrature, double* mean) const {
+  const int C = channels_;
+  for (int c = 0; c < C; ++c) mean[c] = 0;
+  for (int k = 0; k < views_; ++k) {
+    const double w = quadrature.view_weight[static_cast<size_t>(k)];
+    for (int c = 0; c < C; ++c) mean[c] += w * colours[k * C + c];
+  }
+  for (size_t i = 0; i < quadrature.between.size(); ++i) {
+    if (!quadrature.sampled[i]) continue;
+    for (int c = 0; c < C; ++c) mean[c] += quadrature.between_weight * between[i * C + c];
+  }
 }
 
 double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<double>* gradient,
@@ -453,12 +548,15 @@ PixelGridProblem::DataTerms PixelGridProblem::dataTerms(const std::vector<double
   std::array<double, kRowBlocks> blur_sums{}, event_sums{};
 #pragma omp parallel
   {
-    std::vector<double> colour(static_cast<size_t>(V) * C), d_grey(static_cast<size_t>(V)),
-        logs(static_cast<size_t>(V)), greys(static_cast<size_t>(V)),
-        reference(static_cast<size_t>(V) + 1), d_reference(static_cast<size_t>(V) + 1),
-        d_level(static_cast<size_t>(V) + 1);
+    // Per sample (the views, mid-exposure, the samples between views: referenceLevels' indices)
+    // and per view or sample between views (their channels).
+    const auto L = static_cast<size_t>(2 * V);
+    std::vector<double> colour(static_cast<size_t>(V) * C), between(L * C),
+        d_grey(static_cast<size_t>(V)), levels(L), greys(L), reference(L), d_reference(L),
+        d_level(L);
     const int M = referencePlays();
-    std::vector<int> source(static_cast<size_t>(V + 1) * M);
+    std::vector<int> source(L * M), order(L);
+    BlurQuadrature quadrature;
 #pragma omp for schedule(dynamic)
     for (int block = 0; block < kRowBlocks; ++block) {
       const auto bi = static_cast<size_t>(block);
@@ -489,8 +587,8 @@ PixelGridProblem::DataTerms PixelGridProblem::dataTerms(const std::vector<double
           const size_t mid =
               (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
           const double mid_grey = std::max(0.0, nerf::greyOf(&x[mid], C));
-          const double mid_log = log.logOf(mid_grey);
-          double sum[3] = {0, 0, 0};
+          levels[static_cast<size_t>(V)] = log.logOf(mid_grey);
+          double sum[3];
           // The views' samples first, then their levels (the loads of one pass, the logs of the
           // other).
           for (int k = 0; k < V; ++k) {
@@ -503,17 +601,25 @@ PixelGridProblem::DataTerms PixelGridProblem::dataTerms(const std::vector<double
           }
           for (int k = 0; k < V; ++k) {
             const auto ki = static_cast<size_t>(k);
-            const double* out = &colour[ki * C];
-            for (int c = 0; c < C; ++c) sum[c] += out[c];
-            greys[ki] = std::max(0.0, nerf::greyOf(out, C));
-            logs[ki] = log.logOf(greys[ki]);
+            greys[ki] = std::max(0.0, nerf::greyOf(&colour[ki * C], C));
+            levels[ki] = log.logOf(greys[ki]);
+          }
+          blurQuadrature(&taps_[viewSlot(0, pixel)], quadrature);
+          sampleBetween(x.data(), quadrature, between.data());
+          blurMean(colour.data(), between.data(), quadrature, sum);
+          const int count = sampleOrder(quadrature, order.data());
+          for (int s = 0; s < count; ++s) {
+            const auto i = static_cast<size_t>(order[static_cast<size_t>(s)]);
+            if (i <= static_cast<size_t>(V)) continue;
+            greys[i] = std::max(0.0, nerf::greyOf(&between[(i - V - 1) * C], C));
+            levels[i] = log.logOf(greys[i]);
           }
           // Each view against mid-exposure (robust), and each view `lag` views on against it
           // (squares): the change of the sensor's reference level against the events in between
           // (the change since mid telescopes). Each reference is the mean of its plays' levels of
           // their source samples (index V: mid), which take its gradient.
           const bool held = !held_out_.empty() && held_out_[pixel];
-          referenceLevels(logs.data(), mid_log, reference.data(), source.data());
+          referenceLevels(levels.data(), order.data(), count, reference.data(), source.data());
           std::fill(d_reference.begin(), d_reference.end(), 0.0);
           const bool across = across_pixels_[pixel] != 0;
           for (int k = 0; k < V && !held; ++k) {
@@ -536,7 +642,7 @@ PixelGridProblem::DataTerms PixelGridProblem::dataTerms(const std::vector<double
             d_reference[b] += dw;
             d_reference[a] -= dw;
           }
-          referenceGradient(d_reference.data(), source.data(), d_level.data());
+          referenceGradient(d_reference.data(), order.data(), count, source.data(), d_level.data());
           const double d_mid_log = d_level[static_cast<size_t>(V)];
           for (int k = 0; k < V; ++k) {
             const auto a = static_cast<size_t>(k);
@@ -544,15 +650,27 @@ PixelGridProblem::DataTerms PixelGridProblem::dataTerms(const std::vector<double
           }
           double d_sum[3] = {0, 0, 0};
           for (int c = 0; c < C; ++c) {
-            const double r = blurResidual(sum[c] / V, blurry_.ptr<float>(y)[px * C + c]);
+            const double r = blurResidual(sum[c], blurry_.ptr<float>(y)[px * C + c]);
             blur_sum += r * r;
-            d_sum[c] = 2 * blur_scale * r / V;
+            d_sum[c] = 2 * blur_scale * r;
           }
           if (!g) continue;
           double d_colour[3];
+          for (size_t i = 0; i < quadrature.between.size(); ++i) {
+            if (!quadrature.sampled[i]) continue;
+            // Its level's share where the reference took it (d_level is 0 elsewhere).
+            const size_t b = static_cast<size_t>(V) + 1 + i;
+            nerf::greyBackward(d_level[b] != 0 ? d_level[b] * log.logSlope(greys[b]) : 0.0, C,
+                               d_colour);
+            for (int c = 0; c < C; ++c) d_colour[c] += quadrature.between_weight * d_sum[c];
+            Taps t = quadrature.between[i];
+            t.index -= skipped;
+            sampleBackward(g, canvas_w_, C, t, d_colour);
+          }
           for (int k = 0; k < V; ++k) {
             nerf::greyBackward(d_grey[static_cast<size_t>(k)], C, d_colour);
-            for (int c = 0; c < C; ++c) d_colour[c] += d_sum[c];
+            const double share = quadrature.view_weight[static_cast<size_t>(k)];
+            for (int c = 0; c < C; ++c) d_colour[c] += share * d_sum[c];
             Taps t = taps_[viewSlot(k, pixel)];
             if (!behind(t)) {
               t.index -= skipped;
@@ -758,23 +876,51 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
     std::array<Eigen::VectorXd, 3> jb;  // d (mean of the views) / d knots, per channel
     // Per view: its log level and that level's derivative in its pose (0 where it is dark), and
     // the sensor's reference levels (referenceLevels).
+    // Per sample of the reference (the views, mid-exposure, the samples between views:
+    // referenceLevels' indices), its log level.
     std::vector<Vector6> d_log(static_cast<size_t>(V));
-    std::vector<double> logs(static_cast<size_t>(V)), reference(static_cast<size_t>(V) + 1);
+    const auto L = static_cast<size_t>(2 * V);
+    std::vector<double> levels(L), reference(L);
     const int M = referencePlays();
-    std::vector<int> source(static_cast<size_t>(V + 1) * M);
+    std::vector<int> source(L * M), order(L);
     std::vector<uint8_t> lit(static_cast<size_t>(V));
-    // A comparison's derivative as views and their shares: sum of share * d_log[view].
-    std::vector<std::pair<int, double>> terms;
+    // Per sample between views: its channels, and its log level's derivative in its position
+    // (along x and y; 0 where it is dark), which moves by half of each of its two views' moves.
+    std::vector<double> between(L * C);
+    std::vector<Eigen::Vector2d> between_slope(L);
+    // Per view: its stencil, its sample's channels, their derivatives in its position (along x,
+    // then along y) and those weighed as the blur term's mean takes them, and its position's
+    // derivative in its pose.
+    std::vector<Taps> taps(static_cast<size_t>(V));
+    std::vector<double> values(static_cast<size_t>(V) * C), slopes(static_cast<size_t>(V) * 2 * C),
+        moves(static_cast<size_t>(V) * 2 * C);
+    std::vector<Eigen::Matrix<double, 2, 6>> dqs(static_cast<size_t>(V));
+    BlurQuadrature quadrature;
+    // A comparison's derivative as a sum over views of each one's part in its pose.
+    std::vector<std::pair<int, Vector6>> terms;
+    const auto addTerm = [&](int view, const Vector6& part) {
+      auto same = std::find_if(terms.begin(), terms.end(),
+                               [&](const auto& term) { return term.first == view; });
+      if (same == terms.end())
+        terms.emplace_back(view, part);
+      else
+        same->second += part;
+    };
     const auto addSources = [&](int i, double share) {
       for (int m = 0; m < M; ++m) {
         const int from = source[static_cast<size_t>(i) * M + m];
         if (from == V) continue;  // mid-exposure's own cell does not move
-        auto same = std::find_if(terms.begin(), terms.end(),
-                                 [&](const auto& term) { return term.first == from; });
-        if (same == terms.end())
-          terms.emplace_back(from, share / M);
-        else
-          same->second += share / M;
+        if (from < V) {
+          addTerm(from, share / M * d_log[static_cast<size_t>(from)]);
+          continue;
+        }
+        const auto b = static_cast<size_t>(from - V - 1);  // between views b and b + 1
+        const Eigen::Vector2d& slope = between_slope[b];
+        for (const size_t k : {b, b + 1}) {
+          addTerm(static_cast<int>(k),
+                  0.5 * share / M *
+                      (slope.x() * dqs[k].row(0) + slope.y() * dqs[k].row(1)).transpose());
+        }
       }
     };
 #pragma omp for schedule(dynamic)
@@ -790,45 +936,26 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
           const size_t pixel = static_cast<size_t>(y) * W + px;
           const size_t mid =
               (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
-          const double mid_log = log.logOf(std::max(0.0, nerf::greyOf(&x[mid], C)));
-          double sum[3] = {0, 0, 0};
-          for (int c = 0; c < C; ++c) jb[static_cast<size_t>(c)] = Eigen::VectorXd::Zero(dim);
+          levels[static_cast<size_t>(V)] = log.logOf(std::max(0.0, nerf::greyOf(&x[mid], C)));
           for (int k = 0; k < V; ++k) {
             const auto ki = static_cast<size_t>(k);
             const ViewSample s = viewSample(px, y, rotations[ki], poses[ki].translation());
             const Eigen::Vector2d& q = s.q;
             const double rho = s.rho;
-            const Taps t = tapsOf(q, s.behind);
-            const std::array<size_t, 4> at = corners(t);  // top-left, top-right, bottom-...
-            const double *a = x.data() + at[0] * C, *a1 = x.data() + at[1] * C,
-                         *b = x.data() + at[2] * C, *b1 = x.data() + at[3] * C;
-            const int cells = s.behind ? 1 : S;  // per pixel: the layer behind has one
-            double value[3], du[3], dv[3];
-            for (int c = 0; c < C; ++c) {
-              value[c] = (1 - t.ay) * ((1 - t.ax) * a[c] + t.ax * a1[c]) +
-                         t.ay * ((1 - t.ax) * b[c] + t.ax * b1[c]);
-              du[c] = cells * ((1 - t.ay) * (a1[c] - a[c]) + t.ay * (b1[c] - b[c]));
-              dv[c] = cells * ((1 - t.ax) * (b[c] - a[c]) + t.ax * (b1[c] - a1[c]));
-              sum[c] += value[c];
-            }
-            Eigen::Matrix<double, 2, 6> dq;
+            taps[ki] = tapsOf(q, s.behind);
+            double* value = &values[ki * C];
+            double *du = &slopes[ki * 2 * C], *dv = du + C;
+            sampleSlopes(x.data(), taps[ki], value, du, dv);
+            Eigen::Matrix<double, 2, 6>& dq = dqs[ki];
             const Vector3& d = directions_[pixel];
             for (int j = 0; j < 6; ++j) {
               const SE3& m = moved[ki][static_cast<size_t>(j)];
               dq.col(j) =
                   (nerf::projectPoint(camera_, m.rotation() * d + rho * m.translation()) - q) / h;
             }
-            const KnotJacobians& J = jacobians[ki];
-            for (int c = 0; c < C; ++c) {
-              const Vector6 dvalue = (du[c] * dq.row(0) + dv[c] * dq.row(1)).transpose() / V;
-              for (int n = 0; n < J.count; ++n) {
-                jb[static_cast<size_t>(c)].segment<6>(6 * (J.first_knot + n)) +=
-                    J.d_pose_d_knot[static_cast<size_t>(n)].transpose() * dvalue;
-              }
-            }
             const double grey = nerf::greyOf(value, C);
             lit[ki] = grey > 0;
-            logs[ki] = log.logOf(std::max(0.0, grey));
+            levels[ki] = log.logOf(std::max(0.0, grey));
             d_log[ki].setZero();
             if (!lit[ki]) continue;
             const double slope = log.logSlope(grey);
@@ -836,10 +963,54 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
                 (slope * nerf::greyOf(du, C) * dq.row(0) + slope * nerf::greyOf(dv, C) * dq.row(1))
                     .transpose();
           }
+          // The blur term's mean (blurQuadrature) and its derivative in the knots: each view's
+          // sample moves with its pose, each sample between two views with half of each one's.
+          blurQuadrature(taps.data(), quadrature);
+          for (int k = 0; k < V; ++k) {
+            const auto ki = static_cast<size_t>(k);
+            const double w = quadrature.view_weight[ki];
+            for (int j = 0; j < 2 * C; ++j) moves[ki * 2 * C + j] = w * slopes[ki * 2 * C + j];
+          }
+          for (size_t i = 0; i < quadrature.between.size(); ++i) {
+            if (!quadrature.sampled[i]) continue;
+            double* value = &between[i * C];
+            double du[3], dv[3];
+            sampleSlopes(x.data(), quadrature.between[i], value, du, dv);
+            const double grey = nerf::greyOf(value, C);
+            levels[static_cast<size_t>(V) + 1 + i] = log.logOf(std::max(0.0, grey));
+            between_slope[i] = grey > 0 ? Eigen::Vector2d(log.logSlope(grey) * nerf::greyOf(du, C),
+                                                          log.logSlope(grey) * nerf::greyOf(dv, C))
+                                        : Eigen::Vector2d::Zero();
+            const double w = 0.5 * quadrature.between_weight;
+            for (const size_t k : {i, i + 1}) {
+              for (int c = 0; c < C; ++c) {
+                moves[k * 2 * C + c] += w * du[c];
+                moves[k * 2 * C + C + c] += w * dv[c];
+              }
+            }
+          }
+          for (int c = 0; c < C; ++c) jb[static_cast<size_t>(c)] = Eigen::VectorXd::Zero(dim);
+          for (int k = 0; k < V; ++k) {
+            const auto ki = static_cast<size_t>(k);
+            const KnotJacobians& J = jacobians[ki];
+            for (int c = 0; c < C; ++c) {
+              const Vector6 dvalue = (moves[ki * 2 * C + c] * dqs[ki].row(0) +
+                                      moves[ki * 2 * C + C + c] * dqs[ki].row(1))
+                                         .transpose();
+              for (int n = 0; n < J.count; ++n) {
+                jb[static_cast<size_t>(c)].segment<6>(6 * (J.first_knot + n)) +=
+                    J.d_pose_d_knot[static_cast<size_t>(n)].transpose() * dvalue;
+              }
+            }
+          }
+          double sum[3];
+          blurMean(values.data(), between.data(), quadrature, sum);
           // Each view's comparison with mid-exposure moves with the poses of its reference's
-          // sources less those of mid-exposure's: its derivative is a sum over views of a share of
-          // each one's d_log, which gives the blocks of each view and of each pair of views.
-          referenceLevels(logs.data(), mid_log, reference.data(), source.data());
+          // sources less those of mid-exposure's: its derivative is a sum over views of a part in
+          // each one's pose (a view's share of its d_log, or half a sample between views' move),
+          // which gives the blocks of each view and of each pair of views.
+          const int count = sampleOrder(quadrature, order.data());
+          referenceLevels(levels.data(), order.data(), count, reference.data(), source.data());
           for (int k = 0; k < V; ++k) {
             const auto ki = static_cast<size_t>(k);
             if (!lit[ki] || (across_pixels_[pixel] && across_[viewSlot(k, pixel)])) continue;
@@ -853,20 +1024,20 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
             const double w = event_scale * weight;
             for (size_t p = 0; p < terms.size(); ++p) {
               const auto v = static_cast<size_t>(terms[p].first);
-              const Vector6 a = terms[p].second * d_log[v];
+              const Vector6& a = terms[p].second;
               if (a.isZero(0)) continue;
               He[v] += w * a * a.transpose();
               be[v] += w * a * r;
               for (size_t q = p + 1; q < terms.size(); ++q) {
                 const auto u = static_cast<size_t>(terms[q].first);
                 if (cross.empty()) cross.assign(static_cast<size_t>(V) * V, Matrix6::Zero());
-                cross[v * V + u] += w * a * (terms[q].second * d_log[u]).transpose();
+                cross[v * V + u] += w * a * terms[q].second.transpose();
               }
             }
           }
           for (int c = 0; c < C; ++c) {
             bool flat = false;
-            const double r = blurResidual(sum[c] / V, blurry_.ptr<float>(y)[px * C + c], &flat);
+            const double r = blurResidual(sum[c], blurry_.ptr<float>(y)[px * C + c], &flat);
             if (flat) continue;  // flat in the motion as well
             const Eigen::VectorXd& j = jb[static_cast<size_t>(c)];
             Hl.noalias() += blur_scale * j * j.transpose();
@@ -942,20 +1113,29 @@ double PixelGridProblem::heldOutEventTerm(const std::vector<double>& u) const {
   const double sum = orderedSum(H, [&](std::ptrdiff_t row) {
     const int y = static_cast<int>(row);
     double row_sum = 0;
-    std::vector<double> logs(static_cast<size_t>(V)), reference(static_cast<size_t>(V) + 1);
-    std::vector<int> source(static_cast<size_t>(V + 1) * referencePlays());
+    const auto L = static_cast<size_t>(2 * V);
+    std::vector<double> levels(L), reference(L), between(L * C);
+    std::vector<int> source(L * referencePlays()), order(L);
+    BlurQuadrature quadrature;
     for (int px = 0; px < W; ++px) {
       const size_t pixel = static_cast<size_t>(y) * W + px;
       if (!held_out_[pixel]) continue;
       const size_t mid =
           (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
-      const double mid_log = log.logOf(std::max(0.0, nerf::greyOf(&x[mid], C)));
+      levels[static_cast<size_t>(V)] = log.logOf(std::max(0.0, nerf::greyOf(&x[mid], C)));
       for (int k = 0; k < V; ++k) {
         double value[3];
         sampleTaps(x.data(), taps_[viewSlot(k, pixel)], value);
-        logs[static_cast<size_t>(k)] = log.logOf(std::max(0.0, nerf::greyOf(value, C)));
+        levels[static_cast<size_t>(k)] = log.logOf(std::max(0.0, nerf::greyOf(value, C)));
       }
-      referenceLevels(logs.data(), mid_log, reference.data(), source.data());
+      blurQuadrature(&taps_[viewSlot(0, pixel)], quadrature);
+      sampleBetween(x.data(), quadrature, between.data());
+      for (size_t i = 0; i < quadrature.between.size(); ++i) {
+        levels[static_cast<size_t>(V) + 1 + i] =
+            log.logOf(std::max(0.0, nerf::greyOf(&between[i * C], C)));
+      }
+      const int count = sampleOrder(quadrature, order.data());
+      referenceLevels(levels.data(), order.data(), count, reference.data(), source.data());
       for (int k = 0; k < V; ++k) {
         if (across_pixels_[pixel] && across_[viewSlot(k, pixel)]) continue;
         const double r = reference[static_cast<size_t>(k)] - reference[static_cast<size_t>(V)] -
@@ -974,21 +1154,27 @@ cv::Mat PixelGridProblem::blurResiduals(const std::vector<double>& u) const {
   const std::vector<double> x = intensities(u);
   const int W = camera_.width, H = camera_.height, C = channels_, V = views_;
   cv::Mat out(H, W, CV_64F);
-#pragma omp parallel for schedule(static)
-  for (int y = 0; y < H; ++y) {
-    for (int px = 0; px < W; ++px) {
-      const size_t pixel = static_cast<size_t>(y) * W + px;
-      double sum[3] = {0, 0, 0}, value[3];
-      for (int k = 0; k < V; ++k) {
-        sampleTaps(x.data(), taps_[viewSlot(k, pixel)], value);
-        for (int c = 0; c < C; ++c) sum[c] += value[c];
+#pragma omp parallel
+  {
+    std::vector<double> colours(static_cast<size_t>(V) * C), between(static_cast<size_t>(V) * C);
+    BlurQuadrature quadrature;
+#pragma omp for schedule(static)
+    for (int y = 0; y < H; ++y) {
+      for (int px = 0; px < W; ++px) {
+        const size_t pixel = static_cast<size_t>(y) * W + px;
+        for (int k = 0; k < V; ++k)
+          sampleTaps(x.data(), taps_[viewSlot(k, pixel)], &colours[static_cast<size_t>(k) * C]);
+        blurQuadrature(&taps_[viewSlot(0, pixel)], quadrature);
+        sampleBetween(x.data(), quadrature, between.data());
+        double mean[3];
+        blurMean(colours.data(), between.data(), quadrature, mean);
+        double squares = 0;
+        for (int c = 0; c < C; ++c) {
+          const double r = blurResidual(mean[c], blurry_.ptr<float>(y)[px * C + c]);
+          squares += r * r;
+        }
+        out.at<double>(y, px) = squares;
       }
-      double squares = 0;
-      for (int c = 0; c < C; ++c) {
-        const double r = blurResidual(sum[c] / V, blurry_.ptr<float>(y)[px * C + c]);
-        squares += r * r;
-      }
-      out.at<double>(y, px) = squares;
     }
   }
   return out;

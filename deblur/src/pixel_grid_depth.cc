@@ -42,12 +42,22 @@ PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<
   cv::Mat rates = cv::Mat::zeros(H, W, CV_64F);
 #pragma omp parallel
   {
-    std::vector<double> logs(static_cast<size_t>(V)), reference(static_cast<size_t>(V) + 1),
-        d_log(static_cast<size_t>(V));
-    std::vector<double> d_reference(static_cast<size_t>(V) + 1),
-        d_level(static_cast<size_t>(V) + 1), curve(static_cast<size_t>(V));
-    std::vector<int> source(static_cast<size_t>(V + 1) * M), at(static_cast<size_t>(V));
-    std::vector<double> sums(3), moves(static_cast<size_t>(V) * 3);
+    // Per sample of the reference (the views, mid-exposure, the samples between views:
+    // referenceLevels' indices).
+    const auto L = static_cast<size_t>(2 * V);
+    std::vector<double> levels(L), reference(L), d_reference(L), d_level(L),
+        d_log(static_cast<size_t>(V)), curve(static_cast<size_t>(V));
+    std::vector<int> source(L * M), order(L), at(static_cast<size_t>(V));
+    // Per sample between views: its channels and its log level's derivative in its position.
+    std::vector<double> between(L * C);
+    std::vector<Eigen::Vector2d> between_slope(L);
+    // Per view: its sample's channels, their moves per unit of its inverse depth, those weighed
+    // as the blur term's mean takes them (with its samples between views), and its sample's move
+    // on the mid image per unit of inverse depth (moveRate).
+    std::vector<double> sums(3), colours(static_cast<size_t>(V) * C),
+        moves(static_cast<size_t>(V) * 3), blur_moves(static_cast<size_t>(V) * 3);
+    std::vector<Eigen::Vector2d> view_moves(static_cast<size_t>(V));
+    BlurQuadrature quadrature;
 #pragma omp for schedule(dynamic)
     for (int block = 0; block < kRowBlocks; ++block) {
       cv::Mat& Hm = curvatures[static_cast<size_t>(block)];
@@ -59,18 +69,16 @@ PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<
           const size_t pixel = static_cast<size_t>(y) * W + px;
           const size_t mid =
               (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
-          const double mid_log = log.logOf(std::max(0.0, nerf::greyOf(&x[mid], C)));
-          std::fill(sums.begin(), sums.end(), 0.0);
+          levels[static_cast<size_t>(V)] = log.logOf(std::max(0.0, nerf::greyOf(&x[mid], C)));
           for (int k = 0; k < V; ++k) {
             const auto ki = static_cast<size_t>(k);
             const Vector3 Rd = rotations[ki] * directions_[pixel];
             const Vector3& t = translations[ki];
             const ViewSample s = viewSample(px, y, rotations[ki], t);
-            double value[3];
+            double* value = &colours[ki * C];
             sampleTaps(x.data(), taps_[viewSlot(k, pixel)], value);
-            for (int c = 0; c < C; ++c) sums[static_cast<size_t>(c)] += value[c];
             const double grey = nerf::greyOf(value, C);
-            logs[ki] = log.logOf(std::max(0.0, grey));
+            levels[ki] = log.logOf(std::max(0.0, grey));
             d_log[ki] = 0;
             at[ki] = -1;
             if (s.behind || s.across || !(grey > 0)) continue;
@@ -82,27 +90,49 @@ PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<
             if (inverse_depth_.at<float>(v0, u0) != s.rho) continue;  // another surface's
             Eigen::Vector2d move;
             if (pixel_grid_detail::moveRate(camera_, Rd, t, s.rho, &move) < 0) continue;
-            const Taps taps = tapsOf(s.q, false);
-            const std::array<size_t, 4> c4 = corners(taps);
-            const double *a = x.data() + c4[0] * C, *a1 = x.data() + c4[1] * C,
-                         *b = x.data() + c4[2] * C, *b1 = x.data() + c4[3] * C;
-            double du[3], dv[3];
-            for (int c = 0; c < C; ++c) {
-              du[c] = S * ((1 - taps.ay) * (a1[c] - a[c]) + taps.ay * (b1[c] - b[c]));
-              dv[c] = S * ((1 - taps.ax) * (b[c] - a[c]) + taps.ax * (b1[c] - a1[c]));
-            }
+            double unused[3], du[3], dv[3];
+            sampleSlopes(x.data(), tapsOf(s.q, false), unused, du, dv);
             rates.at<double>(y, px) = std::max(rates.at<double>(y, px), move.norm());
             for (int c = 0; c < C; ++c)
               moves[ki * 3 + static_cast<size_t>(c)] = du[c] * move.x() + dv[c] * move.y();
             d_log[ki] = log.logSlope(grey) *
                         (nerf::greyOf(du, C) * move.x() + nerf::greyOf(dv, C) * move.y());
+            view_moves[ki] = move;
             at[ki] = v0 * W + u0;
+          }
+          // The blur term's mean (blurQuadrature): each view's sample's move weighed as the mean
+          // takes it, and each sample between two views moving by half of each one's.
+          blurQuadrature(&taps_[viewSlot(0, pixel)], quadrature);
+          for (int k = 0; k < V; ++k) {
+            const auto ki = static_cast<size_t>(k);
+            for (int c = 0; c < C; ++c)
+              blur_moves[ki * 3 + c] = quadrature.view_weight[ki] * moves[ki * 3 + c];
+          }
+          for (size_t i = 0; i < quadrature.between.size(); ++i) {
+            if (!quadrature.sampled[i]) continue;
+            double* value = &between[i * C];
+            double du[3], dv[3];
+            sampleSlopes(x.data(), quadrature.between[i], value, du, dv);
+            const double grey = nerf::greyOf(value, C);
+            levels[static_cast<size_t>(V) + 1 + i] = log.logOf(std::max(0.0, grey));
+            between_slope[i] = grey > 0 ? Eigen::Vector2d(log.logSlope(grey) * nerf::greyOf(du, C),
+                                                          log.logSlope(grey) * nerf::greyOf(dv, C))
+                                        : Eigen::Vector2d::Zero();
+            for (const size_t k : {i, i + 1}) {
+              if (at[k] < 0) continue;
+              const double w = 0.5 * quadrature.between_weight;
+              for (int c = 0; c < C; ++c)
+                blur_moves[k * 3 + c] +=
+                    w * (du[c] * view_moves[k].x() + dv[c] * view_moves[k].y());
+            }
           }
           // The comparisons as dataTerms makes them (each view against mid-exposure, robust; each
           // view `lag` views on against it, squares), their gradient through the references to
           // each view's level (referenceGradient); the curvature as if each view's level were its
           // own reference.
-          referenceLevels(logs.data(), mid_log, reference.data(), source.data());
+          blurMean(colours.data(), between.data(), quadrature, sums.data());
+          const int count = sampleOrder(quadrature, order.data());
+          referenceLevels(levels.data(), order.data(), count, reference.data(), source.data());
           std::fill(d_reference.begin(), d_reference.end(), 0.0);
           std::fill(curve.begin(), curve.end(), 0.0);
           const bool across = across_pixels_[pixel] != 0;
@@ -126,26 +156,35 @@ PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<
             curve[a] += 2 * window_scale;
             curve[b] += 2 * window_scale;
           }
-          referenceGradient(d_reference.data(), source.data(), d_level.data());
+          referenceGradient(d_reference.data(), order.data(), count, source.data(), d_level.data());
           for (int k = 0; k < V; ++k) {
             const auto ki = static_cast<size_t>(k);
             if (at[ki] < 0) continue;
             Hm.at<double>(at[ki]) += curve[ki] * d_log[ki] * d_log[ki];
             gm.at<double>(at[ki]) += d_level[ki] * d_log[ki];
           }
+          // A sample between views that a reference took moves by half of each view's move.
+          for (size_t i = 0; i < quadrature.between.size(); ++i) {
+            const double d = d_level[static_cast<size_t>(V) + 1 + i];
+            if (d == 0) continue;
+            for (const size_t k : {i, i + 1}) {
+              if (at[k] < 0) continue;
+              gm.at<double>(at[k]) += 0.5 * d * between_slope[i].dot(view_moves[k]);
+            }
+          }
           // The blur term: the mean of the views' samples against the frame, each sample's
           // derivative to the pixel whose depth it is taken through; the curvature of the whole
           // mean's change goes to the pixel itself (its views' depths are its neighbours').
           for (int c = 0; c < C; ++c) {
             bool flat = false;
-            const double r = blurResidual(sums[static_cast<size_t>(c)] / V,
+            const double r = blurResidual(sums[static_cast<size_t>(c)],
                                           blurry_.ptr<float>(y)[px * C + c], &flat);
             if (flat) continue;
             double total = 0;
             for (int k = 0; k < V; ++k) {
               const auto ki = static_cast<size_t>(k);
               if (at[ki] < 0) continue;
-              const double j = moves[ki * 3 + static_cast<size_t>(c)] / V;
+              const double j = blur_moves[ki * 3 + static_cast<size_t>(c)];
               total += j;
               gm.at<double>(at[ki]) += 2 * blur_scale * r * j;
             }

@@ -25,6 +25,10 @@ struct PixelGridOptions {
   // The views per pixel of the longest image path over the exposure, within [min_views,
   // max_views]: the blur integral by the midpoint rule at 1 / views_per_px px apart.
   double views_per_px = 1;
+  // The blur term and the sensor's reference take samples between consecutive views as well
+  // (PixelGridProblem::BlurQuadrature) where the views are more than this far apart along the
+  // longest image path (px; 0: at any spacing).
+  double between_views_px = 0.5;
   int subdivision = 1;  // cells per pixel along each axis
   // Weight of the squared log differences between neighbouring cells, the same prior over the
   // image at any subdivision (as set for 2 x 2 cells a pixel; pixel_grid.cc, evaluate).
@@ -108,6 +112,9 @@ class PixelGridProblem {
     return behind(taps_[viewSlot(view, static_cast<size_t>(y) * camera_.width + x)]);
   }
   int views() const { return views_; }
+  // Whether the blur term and the sensor's reference take samples between the views as well
+  // (BlurQuadrature; PixelGridOptions::between_views_px).
+  bool samplesBetweenViews() const { return between_gap_ >= 0; }
   int margin() const { return margin_; }
   // The longest image path of a pixel over the exposure, by the motion and the inverse depth
   // (empty: at infinity), sampled at the centres of a 16 x 16 grid of cells: the longest but for
@@ -258,19 +265,6 @@ class PixelGridProblem {
   // Every cell's intensity from its log value, and optionally each dI/du.
   std::vector<double> intensities(const std::vector<double>& u,
                                   std::vector<double>* slopes = nullptr) const;
-  // The sensor's reference level at each view and at mid-exposure (PixelGridOptions::hysteresis)
-  // from their log levels, index V for mid: the mean of referencePlays() plays, each started at
-  // another offset within the band (the pixel's offset when the exposure opens is unknown), each
-  // the log level of its source sample source[k * plays + m] plus a constant; without hysteresis
-  // the levels themselves (one play, its own source).
-  void referenceLevels(const double* logs, double mid_log, double* reference, int* source) const;
-  // The gradient of the loss to the samples' log levels (d_level, index V for mid) from its
-  // gradient to their references (d_reference), through referenceLevels' sources: each reference
-  // is the mean of its plays' source levels.
-  void referenceGradient(const double* d_reference, const int* source, double* d_level) const;
-  // The s-th sample in time order: the views before mid-exposure, mid (index views_), the views
-  // after.
-  int sampleInTimeOrder(int s) const { return s < mid_slot_ ? s : s == mid_slot_ ? views_ : s - 1; }
   // Where view `view` of pixel `pixel` is in taps_ and change_.
   size_t viewSlot(int view, size_t pixel) const {
     return pixel * static_cast<size_t>(views_) + static_cast<size_t>(view);
@@ -281,6 +275,59 @@ class PixelGridProblem {
   double eventPenalty(double r, double* weight) const;  // from a log value, and dI/du
   // A mid-image coordinate on the canvas's cell grid.
   double cellCoordinate(double image) const { return (image + margin_) * options_.subdivision; }
+  // The channels of the unknowns x at a stencil (either layer), and their derivatives in the
+  // stencil's position along x and y (per pixel of the mid image).
+  void sampleSlopes(const double* x, const CanvasTaps& t, double* value, double* du,
+                    double* dv) const;
+
+  // The blur term's quadrature of one pixel's exposure (dataTerms, normalEquations, depthNormals,
+  // blurResiduals). The views are the midpoints of V equal parts of the exposure, and between two
+  // consecutive views the pixel's path on the canvas is taken as straight, so that the midpoint of
+  // their two positions is what it sees at the time between theirs: the mean over the exposure is
+  // the midpoint rule on 2V - 1 samples half a view apart, the views' and the V - 1 between them,
+  // each weighted 1 / (2V), the first and the last view 3 / (4V) (they stand for the exposure's
+  // first and last quarter of a view as well). The samples between views also serve the sensor's
+  // reference level (sampleOrder), where they matter most (BENCHMARKS.md, "The samples between the
+  // views"). Where the two views' samples are not on one stretch of canvas (either is from the
+  // layer behind, or they are farther apart than the path's step allows: a depth edge between
+  // them), the mean of the two stands for the sample between, and the reference does without it.
+  struct BlurQuadrature {
+    std::vector<double> view_weight;  // per view, with its shares of the means that stand in
+    std::vector<CanvasTaps> between;  // per pair of consecutive views, the stencil between them
+    std::vector<uint8_t> sampled;     // per pair, whether `between` is sampled
+    double between_weight = 0;
+  };
+  // The quadrature of the pixel whose views' stencils are taps[0..V).
+  void blurQuadrature(const CanvasTaps* taps, BlurQuadrature& out) const;
+  // The channels of the quadrature's samples between views from x ((V - 1) x C; those not
+  // sampled left as they are).
+  void sampleBetween(const double* x, const BlurQuadrature& quadrature, double* between) const;
+  // The blur term's mean of one pixel's channels from its views' samples (V x C) and those between
+  // them (sampleBetween).
+  void blurMean(const double* colours, const double* between, const BlurQuadrature& quadrature,
+                double* mean) const;
+  // A pixel's samples of the exposure as one array of levels (2V entries): the views 0..V-1,
+  // mid-exposure V, the samples between views k and k + 1 at V + 1 + k.
+  // The sensor's reference level at each sample of `order` (count indices into the levels, in time
+  // order; sampleOrder) from their log levels (PixelGridOptions::hysteresis): the mean of
+  // referencePlays() plays, each started at another offset within the band (the pixel's offset when
+  // the exposure opens is unknown), each the log level of its source sample source[i * plays + m]
+  // plus a constant; without hysteresis the levels themselves (one play, its own source).
+  void referenceLevels(const double* levels, const int* order, int count, double* reference,
+                       int* source) const;
+  // The gradient of the loss to the samples' log levels (d_level, 2V entries, 0 where not in the
+  // order) from its gradient to their references (d_reference), through referenceLevels' sources:
+  // each reference is the mean of its plays' source levels.
+  void referenceGradient(const double* d_reference, const int* order, int count, const int* source,
+                         double* d_level) const;
+  // The samples the reference's plays run over, in time order, into `order` (at most 2V); returns
+  // their count: the views, mid-exposure and, with hysteresis, the samples between views that the
+  // blur term takes (BlurQuadrature; the one at mid-exposure's time is mid's own). A play that
+  // steps from view to view misses every turn of the level between them, where texture passes the
+  // pixel faster than the views sample it: on the natural suite's 60 px frames 64 views gained
+  // 0.6-0.8 dB over 32 with the hysteresis and nothing without it (BENCHMARKS.md, "The samples
+  // between the views").
+  int sampleOrder(const BlurQuadrature& quadrature, int* order) const;
 
   // A channel of the frame that the sensor clipped (PixelGridOptions::saturated), and the blur
   // term's residual there and elsewhere (`flat`: clipped with the mean above the top).
@@ -295,6 +342,10 @@ class PixelGridProblem {
   std::vector<Vector3> directions_;
   int64_t mid_us_ = 0;
   double blur_px_ = 0, blur_weight_ = 1;
+  // The farthest apart (in canvas cells, squared) two consecutive views' samples are taken as on
+  // one stretch of the pixel's path (BlurQuadrature): twice the longest path's step and a pixel;
+  // below 0 where no samples are taken between views.
+  double between_gap_ = 0;
   int views_ = 0, margin_ = 0, canvas_w_ = 0, canvas_h_ = 0;
   // The layer behind, on a grid of one cell per pixel and the margin (behind_w_ x behind_h_: the
   // background a near surface uncovers is seen briefly, at its edge, and finer cells there only
