@@ -866,7 +866,7 @@ TEST(PixelGrid, GradientsMatchCentralDifferences) {
                                  Contrast{0.2, 0.25}, o);
         ASSERT_GT(problem.margin(), 0);
         ASSERT_EQ(problem.layered(), step);
-        ASSERT_TRUE(problem.samplesBetweenViews());
+        ASSERT_EQ(problem.samplesBetweenViews(), hysteresis > 0);
         if (colour) problem.holdOutEvents();  // the held-out pixels' events out of the loss
         std::vector<double> x = problem.start(obs.blurry.image);
         std::mt19937_64 rng(7);
@@ -1284,7 +1284,7 @@ TEST(PixelGrid, MotionGradientMatchesCentralDifferences) {
       PixelGridProblem problem(obs, scene.camera, motion_off, inverse_depth, Contrast{0.2, 0.25},
                                o);
       ASSERT_EQ(problem.layered(), colour);
-      ASSERT_TRUE(problem.samplesBetweenViews());
+      ASSERT_EQ(problem.samplesBetweenViews(), hysteresis > 0);
       std::vector<double> u = problem.start(obs.blurry.image);
       std::mt19937_64 rng(11);
       std::uniform_real_distribution<double> jitter(-0.2, 0.2);
@@ -1342,11 +1342,13 @@ TEST(PixelGrid, TheBlurTermIntegratesBetweenTheViews) {
   const Trajectory motion = fitTrajectory(TrajectoryKind::kCubicSE3, 4, t0, t1, poses);
   PixelGridOptions o;
   o.views_per_px = 0.5;
+  o.hysteresis = 0.5;  // the samples between views are the reference's
   const auto make = [&](const cv::Mat& frame) {
     obs.blurry.image = frame;
     return PixelGridProblem(obs, camera, motion, cv::Mat(), Contrast{0.2, 0.2}, o);
   };
   const PixelGridProblem first = make(cv::Mat(32, 48, CV_32F, cv::Scalar(0.5)));
+  ASSERT_TRUE(first.samplesBetweenViews());
   ASSERT_GE(first.views(), 12);  // 0.5 a pixel of the 30 px path, and one
   // The texture on the canvas (image coordinates less the margin), in log intensity.
   const int margin = first.margin(), canvas_w = 48 + 2 * margin;
@@ -1399,7 +1401,7 @@ TEST(PixelGrid, TheDepthGradientMatchesCentralDifferences) {
     const PixelGridProblem problem(scene.obs, scene.camera, scene.motion, inverse_depth, contrast,
                                    o);
     ASSERT_FALSE(problem.layered());
-    ASSERT_TRUE(problem.samplesBetweenViews());
+    ASSERT_EQ(problem.samplesBetweenViews(), hysteresis > 0);
     std::vector<double> u = problem.start(scene.obs.blurry.image);
     std::mt19937_64 rng(5);
     std::uniform_real_distribution<double> jitter(-0.3, 0.3);

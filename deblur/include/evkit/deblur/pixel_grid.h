@@ -25,9 +25,9 @@ struct PixelGridOptions {
   // The views per pixel of the longest image path over the exposure, within [min_views,
   // max_views]: the blur integral by the midpoint rule at 1 / views_per_px px apart.
   double views_per_px = 1;
-  // The blur term and the sensor's reference take samples between consecutive views as well
-  // (PixelGridProblem::BlurQuadrature) where the views are more than this far apart along the
-  // longest image path (px; 0: at any spacing).
+  // With hysteresis, the sensor's reference and the blur term take samples between consecutive
+  // views as well (PixelGridProblem::BlurQuadrature) where the views are more than this far apart
+  // along the longest image path (px; 0: at any spacing).
   double between_views_px = 0.5;
   int subdivision = 1;  // cells per pixel along each axis
   // Weight of the squared log differences between neighbouring cells, the same prior over the
