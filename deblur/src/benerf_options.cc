@@ -99,6 +99,9 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
                  "views_per_px per pixel of it, up to max_views)")
         .number("views_per_px", &O::views_per_px, positive,
                 "the pixel grid's views per pixel of blur when they follow the blur length")
+        .number("between_views_px", &O::between_views_px, {0},
+                "with hysteresis, the pixel grid also samples between views more than this far "
+                "apart along the longest image path (px; 0: always)")
         .integer("max_views", &O::max_views, {8},
                  "the pixel grid's most views when they follow the blur length (fast: 32, else 64)")
         .number("converged", &O::converged, {0},

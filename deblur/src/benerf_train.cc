@@ -654,6 +654,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   if (o.smooth > 0) po.smoothness = o.smooth;
   po.max_views = std::max(po.min_views, o.max_views);
   po.views_per_px = o.views_per_px;
+  po.between_views_px = o.between_views_px;
   if (o.virtual_views > 0) po.min_views = po.max_views = o.virtual_views;
   // Without thresholds: the scale at which the events' counts match the blurry frame along the
   // registered motion (contrastFromCounts: unbiased by the events' noise), refined by short solves

@@ -384,6 +384,18 @@ void PixelGridProblem::blurQuadrature(const Taps* taps, BlurQuadrature& out) con
   }
 }
 
+Eigen::Vector2d PixelGridProblem::betweenLevel(const double* x, const BlurQuadrature& quadrature,
+                                               size_t i, double* value, double* du, double* dv,
+                                               double* level) const {
+  const LogMapping& log = options_.log;
+  sampleSlopes(x, quadrature.between[i], value, du, dv);
+  const double grey = nerf::greyOf(value, channels_);
+  *level = log.logOf(std::max(0.0, grey));
+  if (!(grey > 0)) return Eigen::Vector2d::Zero();
+  return log.logSlope(grey) *
+         Eigen::Vector2d(nerf::greyOf(du, channels_), nerf::greyOf(dv, channels_));
+}
+
 void PixelGridProblem::sampleBetween(const double* x, const BlurQuadrature& quadrature,
                                      double* between) const {
   for (size_t i = 0; i < quadrature.between.size(); ++i) {
@@ -976,14 +988,9 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
           }
           for (size_t i = 0; i < quadrature.between.size(); ++i) {
             if (!quadrature.sampled[i]) continue;
-            double* value = &between[i * C];
             double du[3], dv[3];
-            sampleSlopes(x.data(), quadrature.between[i], value, du, dv);
-            const double grey = nerf::greyOf(value, C);
-            levels[static_cast<size_t>(V) + 1 + i] = log.logOf(std::max(0.0, grey));
-            between_slope[i] = grey > 0 ? Eigen::Vector2d(log.logSlope(grey) * nerf::greyOf(du, C),
-                                                          log.logSlope(grey) * nerf::greyOf(dv, C))
-                                        : Eigen::Vector2d::Zero();
+            between_slope[i] = betweenLevel(x.data(), quadrature, i, &between[i * C], du, dv,
+                                            &levels[static_cast<size_t>(V) + 1 + i]);
             const double w = 0.5 * quadrature.between_weight;
             for (const size_t k : {i, i + 1}) {
               for (int c = 0; c < C; ++c) {

@@ -110,14 +110,9 @@ PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<
           }
           for (size_t i = 0; i < quadrature.between.size(); ++i) {
             if (!quadrature.sampled[i]) continue;
-            double* value = &between[i * C];
             double du[3], dv[3];
-            sampleSlopes(x.data(), quadrature.between[i], value, du, dv);
-            const double grey = nerf::greyOf(value, C);
-            levels[static_cast<size_t>(V) + 1 + i] = log.logOf(std::max(0.0, grey));
-            between_slope[i] = grey > 0 ? Eigen::Vector2d(log.logSlope(grey) * nerf::greyOf(du, C),
-                                                          log.logSlope(grey) * nerf::greyOf(dv, C))
-                                        : Eigen::Vector2d::Zero();
+            between_slope[i] = betweenLevel(x.data(), quadrature, i, &between[i * C], du, dv,
+                                            &levels[static_cast<size_t>(V) + 1 + i]);
             for (const size_t k : {i, i + 1}) {
               if (at[k] < 0) continue;
               const double w = 0.5 * quadrature.between_weight;

@@ -167,6 +167,10 @@ struct BenerfOptions {
   // the noisy suite's 15 px frames +0.19 to +0.43, the standard suite's -0.07 to +0.26, in about
   // 1.5 times the frame's time; at 30 px and more `fast`'s bound of 32 views held the count.
   double views_per_px = 2;
+  // The pixel grid takes samples between consecutive views for the sensor's reference (and the
+  // blur term) where the views are more than this far apart along the longest image path
+  // (PixelGridOptions::between_views_px; px, 0: always).
+  double between_views_px = 0.5;
   double alpha = 0.1;  // event window, fraction of the exposure
   // Event windows per step, the event pixels dealt among them (the paper: one window per step). A
   // single window gives all of a step's event gradients the same two times; many windows spread

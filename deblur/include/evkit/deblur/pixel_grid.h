@@ -302,6 +302,11 @@ class PixelGridProblem {
   // The channels of the quadrature's samples between views from x ((V - 1) x C; those not
   // sampled left as they are).
   void sampleBetween(const double* x, const BlurQuadrature& quadrature, double* between) const;
+  // The sample between views i and i + 1 (sampled): its channels and their derivatives in its
+  // position (sampleSlopes), its log level, and that level's derivative in its position (0 where
+  // it is dark).
+  Eigen::Vector2d betweenLevel(const double* x, const BlurQuadrature& quadrature, size_t i,
+                               double* value, double* du, double* dv, double* level) const;
   // The blur term's mean of one pixel's channels from its views' samples (V x C) and those between
   // them (sampleBetween).
   void blurMean(const double* colours, const double* between, const BlurQuadrature& quadrature,
