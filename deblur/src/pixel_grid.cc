@@ -65,8 +65,8 @@ double PixelGridProblem::eventPenalty(double r, double* weight) const {
 
 void PixelGridProblem::referenceLevels(const double* levels, const int* order, int count,
                                        double* reference, int* source) const {
-  const int M = referencePlays();
-  if (M == 1) {  // no play: each sample's own level (a tie with the one before stays its own)
+  // No play: each sample's own level (a tie with the one before stays its own).
+  if (referencePlays() == 1) {
     for (int s = 0; s < count; ++s) {
       const int i = order[s];
       reference[i] = levels[i];
@@ -74,8 +74,10 @@ void PixelGridProblem::referenceLevels(const double* levels, const int* order, i
     }
     return;
   }
-  // The plays side by side, sample by sample (each sample's level and band read once).
-  double before[kReferencePlays];
+  // The plays side by side, sample by sample (each sample's level and band read once), without
+  // branches.
+  constexpr int M = kReferencePlays;
+  double before[M];
   int* from = source + static_cast<size_t>(order[0]) * M;
   {
     const int i = order[0];
@@ -95,47 +97,44 @@ void PixelGridProblem::referenceLevels(const double* levels, const int* order, i
     const double l = levels[i], low = l - band_up_, high = l + band_down_;
     int* const previous = from;
     from = source + static_cast<size_t>(i) * M;
-    double sum = 0;
-    for (int m = 0; m < M; ++m) {
-      if (before[m] < low) {
-        before[m] = low;
-        from[m] = i;
-      } else if (before[m] > high) {
-        before[m] = high;
-        from[m] = i;
-      } else {
-        from[m] = previous[m];
-      }
-      sum += before[m];
+#pragma omp simd
+    for (int m = 0; m < M; ++m) {  // a play out of the band moves to its edge, from here
+      const double play = before[m];
+      const double held = play < low ? low : (play > high ? high : play);
+      from[m] = held != play ? i : previous[m];
+      before[m] = held;
     }
+    double sum = 0;
+    for (int m = 0; m < M; ++m) sum += before[m];
     reference[i] = sum / M;
   }
 }
 
 void PixelGridProblem::referenceGradient(const double* d_reference, const int* order, int count,
                                          const int* source, double* d_level) const {
-  const int M = referencePlays();
   std::fill(d_level, d_level + 2 * views_, 0.0);
-  if (M == 1) {
+  if (referencePlays() == 1) {
     for (int s = 0; s < count; ++s) d_level[order[s]] = d_reference[order[s]];
     return;
   }
   // A play holds its source's level over a run of samples in time order, the source first. From
   // the last sample back, each sample's share is carried until its run's source, which takes it
   // (no sample's level is written more than once).
-  double carry[kReferencePlays] = {};
+  constexpr int M = kReferencePlays;
+  double carry[M] = {};
   for (int s = count - 1; s >= 0; --s) {
     const int i = order[s];
     const double share = d_reference[i] / M;
     const int* from = source + static_cast<size_t>(i) * M;
-    double own = 0;
+    double taken[M];
+#pragma omp simd
     for (int m = 0; m < M; ++m) {
       carry[m] += share;
-      if (from[m] == i) {
-        own += carry[m];
-        carry[m] = 0;
-      }
+      taken[m] = from[m] == i ? carry[m] : 0.0;
+      carry[m] = from[m] == i ? 0.0 : carry[m];
     }
+    double own = 0;
+    for (int m = 0; m < M; ++m) own += taken[m];
     d_level[i] = own;
   }
 }
@@ -240,20 +239,42 @@ PixelGridProblem::PixelGridProblem(const Observation& obs, const PinholeCamera& 
   // The blurry frame, and the events accumulated from mid-exposure to each view's time.
   obs.blurry.image.convertTo(blurry_, CV_MAKETYPE(CV_32F, channels_));
   blur_weight_ = dimFrameWeight(blurry_, options_.dim_frame);
-  change_.assign(static_cast<size_t>(views_) * directions_.size(), 0.0f);
-  const EventSpan ev = obs.events.sliceTime(t0, t1 + 1);
+  accumulateEvents(obs.events.sliceTime(t0, t1 + 1), contrast);
+}
+
+void PixelGridProblem::accumulateEvents(const EventSpan& ev, const Contrast& contrast) {
+  // An event after mid-exposure raises the level of the views at or after it; one before lowers
+  // the views before it (their level is below mid's by the events in between). Each event is
+  // counted once, by polarity, at the view nearest mid-exposure that it reaches; the counts are
+  // then summed outwards from mid-exposure, so that each view's change is whole counts times the
+  // thresholds (no float sum over the events).
+  const int W = camera_.width, H = camera_.height, V = views_;
+  const size_t N = directions_.size();
+  std::vector<int32_t> on(N * V, 0), off(N * V, 0);
   for (size_t e = 0; e < ev.size(); ++e) {
     if (ev.x[e] >= W || ev.y[e] >= H) continue;
     const size_t pixel = static_cast<size_t>(ev.y[e]) * W + ev.x[e];
-    const float step = static_cast<float>(ev.p[e] > 0 ? contrast.on : -contrast.off);
-    // An event after mid-exposure raises the level of the views after it; one before lowers the
-    // views before it (their level is below mid's by the events in between).
-    for (int k = 0; k < views_; ++k) {
-      const int64_t tk = times_us_[static_cast<size_t>(k)];
-      if (ev.t[e] > mid_us_ && ev.t[e] <= tk)
-        change_[viewSlot(k, pixel)] += step;
-      else if (ev.t[e] <= mid_us_ && ev.t[e] > tk)
-        change_[viewSlot(k, pixel)] -= step;
+    // The first view at or after the event.
+    const auto first = static_cast<int>(
+        std::lower_bound(times_us_.begin(), times_us_.end(), ev.t[e]) - times_us_.begin());
+    const int k = ev.t[e] > mid_us_ ? first : first - 1;
+    if (k < 0 || k >= V) continue;
+    ++(ev.p[e] > 0 ? on : off)[viewSlot(k, pixel)];
+  }
+  change_.assign(N * V, 0.0f);
+  for (size_t pixel = 0; pixel < N; ++pixel) {
+    const size_t at = viewSlot(0, pixel);
+    const int32_t *up = &on[at], *down = &off[at];
+    float* change = &change_[at];
+    int32_t n_on = 0, n_off = 0;
+    for (int k = mid_slot_; k < V; ++k) {  // the views at or after mid-exposure
+      n_on += up[k], n_off += down[k];
+      change[k] = static_cast<float>(n_on * contrast.on - n_off * contrast.off);
+    }
+    n_on = n_off = 0;
+    for (int k = mid_slot_ - 1; k >= 0; --k) {  // the views before it
+      n_on += up[k], n_off += down[k];
+      change[k] = static_cast<float>(n_off * contrast.off - n_on * contrast.on);
     }
   }
 }
@@ -407,15 +428,16 @@ void PixelGridProblem::sampleBetween(const double* x, const BlurQuadrature& quad
 void PixelGridProblem::blurMean(const double* colours, const double* between,
                                 const BlurQuadrature& quadrature, double* mean) const {
   const int C = channels_;
-  for (int c = 0; c < C; ++c) mean[c] = 0;
+  double sum[3] = {0, 0, 0};  // in registers, not through `mean` (which may alias the inputs)
   for (int k = 0; k < views_; ++k) {
     const double w = quadrature.view_weight[static_cast<size_t>(k)];
-    for (int c = 0; c < C; ++c) mean[c] += w * colours[k * C + c];
+    for (int c = 0; c < C; ++c) sum[c] += w * colours[k * C + c];
   }
   for (size_t i = 0; i < quadrature.between.size(); ++i) {
     if (!quadrature.sampled[i]) continue;
-    for (int c = 0; c < C; ++c) mean[c] += quadrature.between_weight * between[i * C + c];
+    for (int c = 0; c < C; ++c) sum[c] += quadrature.between_weight * between[i * C + c];
   }
+  for (int c = 0; c < C; ++c) mean[c] = sum[c];
 }
 
 double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<double>* gradient,

@@ -227,6 +227,8 @@ class PixelGridProblem {
   // near side.
   cv::Mat behindStart(const cv::Mat& mid_image) const;
 
+  // change_: each view's log change since mid-exposure from the events of the exposure.
+  void accumulateEvents(const EventSpan& events, const Contrast& contrast);
   // nearest_, farthest_ and most_move_ from the inverse depth and the views' poses.
   void findSurfaces();
   // Every view's stencils from the motion, and block_rows_ (not while `allocating`, viewSample's).
