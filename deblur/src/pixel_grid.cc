@@ -1163,6 +1163,7 @@ double PixelGridProblem::heldOutEventTerm(const std::vector<double>& u) const {
       blurQuadrature(&taps_[viewSlot(0, pixel)], quadrature);
       sampleBetween(x.data(), quadrature, between.data());
       for (size_t i = 0; i < quadrature.between.size(); ++i) {
+        if (!quadrature.sampled[i]) continue;
         levels[static_cast<size_t>(V) + 1 + i] =
             log.logOf(std::max(0.0, nerf::greyOf(&between[i * C], C)));
       }
