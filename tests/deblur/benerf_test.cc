@@ -971,6 +971,60 @@ TEST(PixelGrid, HeldOutPixelsLeaveTheEventTermAndAreScoredApart) {
   EXPECT_GT(held, 0.0);
 }
 
+// Each view's log change since mid-exposure is the events between them: one after mid-exposure
+// counts at every view at or after it, one at or before mid-exposure (negated) at every view before
+// it. On a still camera and a uniform image every level is mid's, so the event term is the mean
+// over pixels and views of the squared changes; events on view and mid-exposure instants, and
+// before and after the exposure, against the changes counted one event and view at a time.
+TEST(PixelGrid, EachViewsChangeIsTheEventsBetweenItAndMidExposure) {
+  GridScene scene = gridScene(false);
+  Observation& obs = scene.obs;
+  const int64_t t0 = obs.blurry.exposure_start_us, t1 = obs.blurry.exposure_end_us,
+                mid = obs.blurry.midExposure();
+  obs.blurry.image.setTo(0.4);
+  std::vector<StampedPose> still;
+  for (int k = 0; k <= 4; ++k) still.push_back({t0 + (t1 - t0) * k / 4, SE3()});
+  const Trajectory motion = fitTrajectory(TrajectoryKind::kCubicSE3, 4, t0, t1, still);
+  PixelGridOptions o;
+  o.smoothness = 0;
+  o.min_views = o.max_views = 8;
+  const Contrast contrast{0.2, 0.3};
+  const int V = 8;
+  std::vector<int64_t> views;
+  for (int k = 0; k < V; ++k)
+    views.push_back(t0 + std::llround((k + 0.5) / V * static_cast<double>(t1 - t0)));
+  struct Event {
+    int64_t t;
+    int x, y, p;
+  };
+  const std::vector<Event> events = {
+      {t0 - 500, 3, 2, 1},  {t0, 3, 2, 1},        {views[1], 3, 2, -1}, {views[2] + 1, 3, 2, 1},
+      {mid - 1, 3, 2, -1},  {mid, 3, 2, 1},       {mid + 1, 3, 2, 1},   {mid + 1, 20, 9, -1},
+      {views[5], 3, 2, -1}, {views[6], 20, 9, 1}, {t1, 20, 9, 1},       {t1 + 1, 3, 2, 1}};
+  obs.events = EventStore(SensorSize{24, 18});
+  for (const Event& e : events) obs.events.push_back(e.t, e.x, e.y, e.p);
+  PixelGridProblem problem(obs, scene.camera, motion, cv::Mat(), contrast, o);
+  ASSERT_EQ(problem.views(), V);
+  double expected = 0;
+  for (const auto& [x, y] : {std::pair{3, 2}, std::pair{20, 9}}) {
+    for (int k = 0; k < V; ++k) {
+      double change = 0;
+      for (const Event& e : events) {
+        if (e.x != x || e.y != y || e.t < t0 || e.t > t1) continue;
+        const double step = e.p > 0 ? contrast.on : -contrast.off;
+        if (e.t > mid && e.t <= views[k]) change += step;
+        if (e.t <= mid && e.t > views[k]) change -= step;
+      }
+      expected += change * change;
+    }
+  }
+  expected /= 24.0 * 18.0 * V;
+  ASSERT_GT(expected, 0.0);
+  PixelGridProblem::Terms terms;
+  problem.evaluate(problem.start(obs.blurry.image), nullptr, &terms);
+  EXPECT_NEAR(terms.event, expected, 1e-6 * expected);
+}
+
 // The smoothness is the same prior over the image at any cells per pixel: on a smooth ramp its
 // share of the loss is the same with 2 x 2 cells a pixel and with 3 x 3 (weighed once per cell, the
 // finer cells had 4/9 of it), and in colour with the chroma's (each channel its own slope).
