@@ -293,14 +293,20 @@ double PixelGridProblem::intensityOf(double u, double* slope) const {
 
 std::vector<double> PixelGridProblem::intensities(const std::vector<double>& u,
                                                   std::vector<double>* slopes) const {
-  std::vector<double> x(u.size());
+  std::vector<double> x;
+  intensities(u, x, slopes);
+  return x;
+}
+
+void PixelGridProblem::intensities(const std::vector<double>& u, std::vector<double>& x,
+                                   std::vector<double>* slopes) const {
+  x.resize(u.size());
   if (slopes) slopes->resize(u.size());
 #pragma omp parallel for schedule(static)
   for (size_t i = 0; i < u.size(); ++i) {
     double slope;
     x[i] = intensityOf(u[i], slopes ? &(*slopes)[i] : &slope);
   }
-  return x;
 }
 
 double PixelGridProblem::canvasValue(const cv::Mat& f, int i, int j, int c, int S) const {
@@ -444,11 +450,11 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
                                   Terms* terms) const {
   // The unknowns are the cells' log intensities (the event model's mapping); the views sample the
   // cells' intensities bilinearly (linear light).
-  std::vector<double> slope;
-  const std::vector<double> x = intensities(u, &slope);
+  std::vector<double>&x = scratch_.x, &slope = scratch_.slope;
+  intensities(u, x, &slope);
   const int C = channels_;
   if (gradient) gradient->resize(x.size());
-  BlockGradients blocks;
+  BlockGradients& blocks = scratch_.blocks;
   const DataTerms data = dataTerms(x, 1, gradient ? &blocks : nullptr);
   const std::vector<std::vector<double>>&partial = blocks.front, &partial_behind = blocks.behind;
   const auto row = static_cast<size_t>(canvas_w_) * C;
@@ -578,9 +584,9 @@ PixelGridProblem::DataTerms PixelGridProblem::dataTerms(const std::vector<double
   const LogMapping& log = options_.log;
   // Each row block's sums and gradient on its own (block_rows_), added in block order.
   const auto row = static_cast<size_t>(canvas_w_) * C;
-  if (blocks) {
-    blocks->front.assign(kRowBlocks, {});
-    blocks->behind.assign(layered() ? kRowBlocks : 0, {});
+  if (blocks) {  // each block's vector is assigned below, within its capacity after a first call
+    blocks->front.resize(kRowBlocks);
+    blocks->behind.resize(layered() ? kRowBlocks : 0);
   }
   std::array<double, kRowBlocks> blur_sums{}, event_sums{};
 #pragma omp parallel

@@ -267,6 +267,8 @@ class PixelGridProblem {
   // Every cell's intensity from its log value, and optionally each dI/du.
   std::vector<double> intensities(const std::vector<double>& u,
                                   std::vector<double>* slopes = nullptr) const;
+  void intensities(const std::vector<double>& u, std::vector<double>& x,
+                   std::vector<double>* slopes) const;
   // Where view `view` of pixel `pixel` is in taps_ and change_.
   size_t viewSlot(int view, size_t pixel) const {
     return pixel * static_cast<size_t>(views_) + static_cast<size_t>(view);
@@ -386,6 +388,15 @@ class PixelGridProblem {
   double band_up_ = 0, band_down_ = 0;  // the reference's play (PixelGridOptions::hysteresis)
   int mid_slot_ = 0;                    // mid-exposure's place among the views in time order
   cv::Mat blurry_;
+  // evaluate's intensities, their slopes and the blocks' gradients, kept from one call to the next:
+  // allocated afresh each call, their pages were faulted in and zeroed again every evaluation, 7%
+  // of a frame without thresholds (BENCHMARKS.md, "What a view costs"). So evaluate, though const,
+  // is not to be called on one problem from two threads at once.
+  struct Scratch {
+    std::vector<double> x, slope;
+    BlockGradients blocks;
+  };
+  mutable Scratch scratch_;
 };
 
 }  // namespace evkit
