@@ -431,6 +431,37 @@ void PixelGridProblem::sampleBetween(const double* x, const BlurQuadrature& quad
   }
 }
 
+int PixelGridProblem::pixelLevels(const double* x, size_t pixel, size_t mid,
+                                  BlurQuadrature& quadrature, double* colour, double* between,
+                                  double* greys, double* levels, int* order) const {
+  const int V = views_, C = channels_;
+  const LogMapping& log = options_.log;
+  greys[V] = std::max(0.0, nerf::greyOf(&x[mid], C));
+  levels[V] = log.logOf(greys[V]);
+  // The views' samples first, then their levels (the loads of one pass, the logs of the other).
+  for (int k = 0; k < V; ++k) {
+    const Taps& t = taps_[viewSlot(k, pixel)];
+    if (behind(t))
+      sampleBehind(x, t, colour + k * C);
+    else
+      sample(x, canvas_w_, C, t, colour + k * C);
+  }
+  for (int k = 0; k < V; ++k) {
+    greys[k] = std::max(0.0, nerf::greyOf(colour + k * C, C));
+    levels[k] = log.logOf(greys[k]);
+  }
+  blurQuadrature(&taps_[viewSlot(0, pixel)], quadrature);
+  sampleBetween(x, quadrature, between);
+  const int count = sampleOrder(quadrature, order);
+  for (int s = 0; s < count; ++s) {
+    const int i = order[s];
+    if (i <= V) continue;
+    greys[i] = std::max(0.0, nerf::greyOf(between + static_cast<ptrdiff_t>(i - V - 1) * C, C));
+    levels[i] = log.logOf(greys[i]);
+  }
+  return count;
+}
+
 void PixelGridProblem::blurMean(const double* colours, const double* between,
                                 const BlurQuadrature& quadrature, double* mean) const {
   const int C = channels_;
@@ -629,34 +660,11 @@ PixelGridProblem::DataTerms PixelGridProblem::dataTerms(const std::vector<double
           const int S = options_.subdivision;
           const size_t mid =
               (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
-          const double mid_grey = std::max(0.0, nerf::greyOf(&x[mid], C));
-          levels[static_cast<size_t>(V)] = log.logOf(mid_grey);
+          const int count = pixelLevels(x.data(), pixel, mid, quadrature, colour.data(),
+                                        between.data(), greys.data(), levels.data(), order.data());
+          const double mid_grey = greys[static_cast<size_t>(V)];
           double sum[3];
-          // The views' samples first, then their levels (the loads of one pass, the logs of the
-          // other).
-          for (int k = 0; k < V; ++k) {
-            double* out = &colour[static_cast<size_t>(k) * C];
-            const Taps& t = taps_[viewSlot(k, pixel)];
-            if (behind(t))
-              sampleBehind(x.data(), t, out);
-            else
-              sample(x.data(), canvas_w_, C, t, out);
-          }
-          for (int k = 0; k < V; ++k) {
-            const auto ki = static_cast<size_t>(k);
-            greys[ki] = std::max(0.0, nerf::greyOf(&colour[ki * C], C));
-            levels[ki] = log.logOf(greys[ki]);
-          }
-          blurQuadrature(&taps_[viewSlot(0, pixel)], quadrature);
-          sampleBetween(x.data(), quadrature, between.data());
           blurMean(colour.data(), between.data(), quadrature, sum);
-          const int count = sampleOrder(quadrature, order.data());
-          for (int s = 0; s < count; ++s) {
-            const auto i = static_cast<size_t>(order[static_cast<size_t>(s)]);
-            if (i <= static_cast<size_t>(V)) continue;
-            greys[i] = std::max(0.0, nerf::greyOf(&between[(i - V - 1) * C], C));
-            levels[i] = log.logOf(greys[i]);
-          }
           // Each view against mid-exposure (robust), and each view `lag` views on against it
           // (squares): the change of the sensor's reference level against the events in between
           // (the change since mid telescopes). Each reference is the mean of its plays' levels of
@@ -1145,14 +1153,13 @@ double PixelGridProblem::heldOutEventTerm(const std::vector<double>& u) const {
   const std::vector<double> x = intensities(u);
   const int W = camera_.width, H = camera_.height, C = channels_, S = options_.subdivision,
             V = views_;
-  const LogMapping& log = options_.log;
   // In a fixed order (orderedSum), so that a close choice between candidates is the same on every
   // run.
   const double sum = orderedSum(H, [&](std::ptrdiff_t row) {
     const int y = static_cast<int>(row);
     double row_sum = 0;
     const auto L = static_cast<size_t>(2 * V);
-    std::vector<double> levels(L), reference(L), between(L * C);
+    std::vector<double> colour(L * C), between(L * C), greys(L), levels(L), reference(L);
     std::vector<int> source(L * referencePlays()), order(L);
     BlurQuadrature quadrature;
     for (int px = 0; px < W; ++px) {
@@ -1160,20 +1167,8 @@ double PixelGridProblem::heldOutEventTerm(const std::vector<double>& u) const {
       if (!held_out_[pixel]) continue;
       const size_t mid =
           (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
-      levels[static_cast<size_t>(V)] = log.logOf(std::max(0.0, nerf::greyOf(&x[mid], C)));
-      for (int k = 0; k < V; ++k) {
-        double value[3];
-        sampleTaps(x.data(), taps_[viewSlot(k, pixel)], value);
-        levels[static_cast<size_t>(k)] = log.logOf(std::max(0.0, nerf::greyOf(value, C)));
-      }
-      blurQuadrature(&taps_[viewSlot(0, pixel)], quadrature);
-      sampleBetween(x.data(), quadrature, between.data());
-      for (size_t i = 0; i < quadrature.between.size(); ++i) {
-        if (!quadrature.sampled[i]) continue;
-        levels[static_cast<size_t>(V) + 1 + i] =
-            log.logOf(std::max(0.0, nerf::greyOf(&between[i * C], C)));
-      }
-      const int count = sampleOrder(quadrature, order.data());
+      const int count = pixelLevels(x.data(), pixel, mid, quadrature, colour.data(), between.data(),
+                                    greys.data(), levels.data(), order.data());
       referenceLevels(levels.data(), order.data(), count, reference.data(), source.data());
       for (int k = 0; k < V; ++k) {
         if (across_pixels_[pixel] && across_[viewSlot(k, pixel)]) continue;

@@ -306,6 +306,14 @@ class PixelGridProblem {
   // The channels of the quadrature's samples between views from x ((V - 1) x C; those not
   // sampled left as they are).
   void sampleBetween(const double* x, const BlurQuadrature& quadrature, double* between) const;
+  // A pixel's samples from x and their greys and log levels, indexed as referenceLevels takes
+  // them (the views, V: mid-exposure, whose cell starts at `mid`, V + 1 + i: the sample between
+  // views i and i + 1): the views' channels into `colour` (V x C), the quadrature, the samples
+  // between views into `between` (sampleBetween), and the order of the samples in time
+  // (sampleOrder), whose count it returns. Only the samples between views that the order takes
+  // have a level.
+  int pixelLevels(const double* x, size_t pixel, size_t mid, BlurQuadrature& quadrature,
+                  double* colour, double* between, double* greys, double* levels, int* order) const;
   // The sample between views i and i + 1 (sampled): its channels and their derivatives in its
   // position (sampleSlopes), its log level, and that level's derivative in its position (0 where
   // it is dark).
@@ -391,8 +399,11 @@ class PixelGridProblem {
   // evaluate's intensities, their slopes and the blocks' gradients, kept from one call to the next:
   // allocated afresh each call, their pages were faulted in and zeroed again every evaluation, 7%
   // of a frame without thresholds (BENCHMARKS.md, "What a view costs"). So evaluate, though const,
-  // is not to be called on one problem from two threads at once.
+  // is not to be called on one problem from two threads at once. A copy starts without them.
   struct Scratch {
+    Scratch() = default;
+    Scratch(const Scratch&) {}
+    Scratch& operator=(const Scratch&) { return *this; }
     std::vector<double> x, slope;
     BlockGradients blocks;
   };
