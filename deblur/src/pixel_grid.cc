@@ -439,13 +439,7 @@ int PixelGridProblem::pixelLevels(const double* x, size_t pixel, size_t mid,
   greys[V] = std::max(0.0, nerf::greyOf(&x[mid], C));
   levels[V] = log.logOf(greys[V]);
   // The views' samples first, then their levels (the loads of one pass, the logs of the other).
-  for (int k = 0; k < V; ++k) {
-    const Taps& t = taps_[viewSlot(k, pixel)];
-    if (behind(t))
-      sampleBehind(x, t, colour + k * C);
-    else
-      sample(x, canvas_w_, C, t, colour + k * C);
-  }
+  for (int k = 0; k < V; ++k) sampleTaps(x, taps_[viewSlot(k, pixel)], colour + k * C);
   for (int k = 0; k < V; ++k) {
     greys[k] = std::max(0.0, nerf::greyOf(colour + k * C, C));
     levels[k] = log.logOf(greys[k]);
@@ -518,10 +512,11 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
   };
   const double smooth = orderedSum(canvas_h_, [&](std::ptrdiff_t j) {
     double smooth_row = 0;
-    // Row j of each block's gradient that reaches it, in block order.
+    // Row j of each block's gradient that reaches it, in block order (none without a gradient:
+    // the scratch's blocks are then a call before's).
     std::array<const double*, kRowBlocks> from_blocks{};
     int reaching = 0;
-    for (size_t block = 0; block < partial.size(); ++block) {
+    for (size_t block = 0; gradient && block < partial.size(); ++block) {
       const auto [first, last] = block_rows_[block];
       if (j >= first && j < last)
         from_blocks[static_cast<size_t>(reaching++)] =
@@ -657,9 +652,7 @@ PixelGridProblem::DataTerms PixelGridProblem::dataTerms(const std::vector<double
         if (y % stride != 0) continue;
         for (int px = 0; px < W; px += stride) {
           const size_t pixel = static_cast<size_t>(y) * W + px;
-          const int S = options_.subdivision;
-          const size_t mid =
-              (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
+          const size_t mid = midCell(px, y);
           const int count = pixelLevels(x.data(), pixel, mid, quadrature, colour.data(),
                                         between.data(), greys.data(), levels.data(), order.data());
           const double mid_grey = greys[static_cast<size_t>(V)];
@@ -894,8 +887,7 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
   // Gauss-Newton on both terms' residuals with respect to the knots' right perturbations, through
   // the image's gradient where each view sees it (each pixel's point at its inverse depth moved by
   // the view's pose); every `stride`-th row and column.
-  const int W = camera_.width, H = camera_.height, C = channels_, S = options_.subdivision,
-            V = views_;
+  const int W = camera_.width, H = camera_.height, C = channels_, V = views_;
   const size_t N = directions_.size();
   const LogMapping& log = options_.log;
   const Eigen::Index dim = 6 * static_cast<Eigen::Index>(motion_.knots().size());
@@ -985,8 +977,7 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
            y += stride) {
         for (int px = 0; px < W; px += stride) {
           const size_t pixel = static_cast<size_t>(y) * W + px;
-          const size_t mid =
-              (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
+          const size_t mid = midCell(px, y);
           levels[static_cast<size_t>(V)] = log.logOf(std::max(0.0, nerf::greyOf(&x[mid], C)));
           for (int k = 0; k < V; ++k) {
             const auto ki = static_cast<size_t>(k);
@@ -1151,8 +1142,7 @@ void PixelGridProblem::holdOutEvents() {
 double PixelGridProblem::heldOutEventTerm(const std::vector<double>& u) const {
   if (held_out_.empty()) return 0;
   const std::vector<double> x = intensities(u);
-  const int W = camera_.width, H = camera_.height, C = channels_, S = options_.subdivision,
-            V = views_;
+  const int W = camera_.width, H = camera_.height, C = channels_, V = views_;
   // In a fixed order (orderedSum), so that a close choice between candidates is the same on every
   // run.
   const double sum = orderedSum(H, [&](std::ptrdiff_t row) {
@@ -1165,8 +1155,7 @@ double PixelGridProblem::heldOutEventTerm(const std::vector<double>& u) const {
     for (int px = 0; px < W; ++px) {
       const size_t pixel = static_cast<size_t>(y) * W + px;
       if (!held_out_[pixel]) continue;
-      const size_t mid =
-          (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
+      const size_t mid = midCell(px, y);
       const int count = pixelLevels(x.data(), pixel, mid, quadrature, colour.data(), between.data(),
                                     greys.data(), levels.data(), order.data());
       referenceLevels(levels.data(), order.data(), count, reference.data(), source.data());

@@ -21,8 +21,7 @@ PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<
   // pixel, dq / drho there being moveRate's. Accumulated by row blocks, each block's maps summed in
   // block order (the same bits at any thread count).
   const std::vector<double> x = intensities(u);
-  const int W = camera_.width, H = camera_.height, C = channels_, S = options_.subdivision,
-            V = views_, M = referencePlays();
+  const int W = camera_.width, H = camera_.height, C = channels_, V = views_, M = referencePlays();
   const size_t N = directions_.size();
   const LogMapping& log = options_.log;
   const int lag = eventLag();
@@ -67,8 +66,7 @@ PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<
       for (int y = blockBegin(block); y < blockBegin(block + 1); ++y) {
         for (int px = 0; px < W; ++px) {
           const size_t pixel = static_cast<size_t>(y) * W + px;
-          const size_t mid =
-              (static_cast<size_t>((y + margin_) * S) * canvas_w_ + (px + margin_) * S) * C;
+          const size_t mid = midCell(px, y);
           levels[static_cast<size_t>(V)] = log.logOf(std::max(0.0, nerf::greyOf(&x[mid], C)));
           for (int k = 0; k < V; ++k) {
             const auto ki = static_cast<size_t>(k);

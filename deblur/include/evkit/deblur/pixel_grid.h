@@ -269,6 +269,14 @@ class PixelGridProblem {
                                   std::vector<double>* slopes = nullptr) const;
   void intensities(const std::vector<double>& u, std::vector<double>& x,
                    std::vector<double>* slopes) const;
+  // Where pixel (px, y)'s mid-exposure cell, the first of its S x S, starts among the cells'
+  // values.
+  size_t midCell(int px, int y) const {
+    const int S = options_.subdivision;
+    return (static_cast<size_t>((y + margin_) * S) * canvas_w_ +
+            static_cast<size_t>((px + margin_) * S)) *
+           static_cast<size_t>(channels_);
+  }
   // Where view `view` of pixel `pixel` is in taps_ and change_.
   size_t viewSlot(int view, size_t pixel) const {
     return pixel * static_cast<size_t>(views_) + static_cast<size_t>(view);
@@ -397,7 +405,7 @@ class PixelGridProblem {
   int mid_slot_ = 0;                    // mid-exposure's place among the views in time order
   cv::Mat blurry_;
   // evaluate's intensities, their slopes and the blocks' gradients, kept from one call to the next:
-  // allocated afresh each call, their pages were faulted in and zeroed again every evaluation, 7%
+  // allocated afresh each call, their pages were faulted in and zeroed again every evaluation, 4.4%
   // of a frame without thresholds (BENCHMARKS.md, "What a view costs"). So evaluate, though const,
   // is not to be called on one problem from two threads at once. A copy starts without them.
   struct Scratch {
