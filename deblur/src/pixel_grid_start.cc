@@ -3,10 +3,14 @@
 
 #include "pixel_grid_start.h"
 
+#include <omp.h>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <exception>
 #include <limits>
+#include <mutex>
 #include <optional>
 #include <type_traits>
 #include <utility>
@@ -40,14 +44,45 @@ double trapezoidMean(int n, Value value) {
   return sum / (n - 1);
 }
 
+// Runs a() and b() at once, each on half of OpenMP's threads (their own parallel loops nested
+// inside), or one after the other where there is one thread. What each computes does not depend on
+// its threads: the grid's sums are over fixed blocks (BENCHMARKS.md, "The same bits at any thread
+// count").
+void bothAtOnce(const std::function<void()>& a, const std::function<void()>& b) {
+  const int threads = omp_get_max_threads();
+  if (threads < 2 || omp_in_parallel()) {
+    a();
+    b();
+    return;
+  }
+  const int levels = omp_get_max_active_levels();
+  omp_set_max_active_levels(std::max(levels, 2));
+  std::exception_ptr failed[2];
+#pragma omp parallel num_threads(2)
+  {
+    const int me = omp_get_thread_num(), team = omp_get_num_threads();
+    omp_set_num_threads(std::max(1, (threads + 1 - me) / team));
+    for (int task = me; task < 2; task += team) {
+      try {
+        (task == 0 ? a : b)();
+      } catch (...) {
+        failed[task] = std::current_exception();
+      }
+    }
+  }
+  omp_set_max_active_levels(levels);
+  for (const std::exception_ptr& f : failed)
+    if (f) std::rethrow_exception(f);
+}
+
 }  // namespace
 
 WalkedLeast walkToLeast(const std::function<double(double)>& misfit, double l, double first,
-                        double h, double below, double above) {
+                        double second, double h, double below, double above) {
   // Three points h apart, the middle one the least seen: up from l while the misfit falls, else
   // down; a point beyond [below, above] is not tried (NaN), which ends the walk there.
   const double none = std::numeric_limits<double>::quiet_NaN();
-  std::array<double, 3> f{none, first, misfit(l + h)};
+  std::array<double, 3> f{none, first, second};
   if (f[2] < f[1]) {
     do {
       f[0] = f[1];
@@ -192,20 +227,30 @@ SolvedContrast contrastFromSolves(
   const int64_t t0 = given.blurry.exposure_start_us, t1 = given.blurry.exposure_end_us;
   const cv::Mat counts = exposureEventCounts(given);
   const double events = cv::sum(counts)[0], channels = given.blurry.image.channels();
-  int solves = 0;
   SolvedContrast out;
-  std::optional<ExposureMotion> shared;  // the candidates' one registration, where they refine it
-  const auto misfit = [&](double l) {
+  po.event_robust = o.mid_robust;
+  const double lo = std::log(kLeastContrast), hi = std::log(kMostContrast), h = std::log(2.0) / 6;
+  // The walk stays within `band` of c0 (in log c) and inside the range.
+  const double below = std::max(lo, std::log(c0) - band), above = std::min(hi, std::log(c0) + band);
+  double l = std::clamp(std::log(c0), lo + h, hi - h);
+  // The candidates' one registration, at the first one's c, where they refine it.
+  std::optional<ExposureMotion> shared;
+  if (refine_motions)
+    shared = motionFromLatentFrames(given, camera, Contrast{std::exp(l), std::exp(l) * ratio},
+                                    o.log, false);
+  std::mutex fit_mutex;
+  // A candidate's misfit; the first's start is checked against the blurry frame (out.start).
+  const auto misfit = [&](double l, bool first) {
     const Contrast contrast{std::exp(l), std::exp(l) * ratio};
-    ++solves;
-    if (refine_motions && !shared)
-      shared = motionFromLatentFrames(given, camera, contrast, o.log, false);
     const ExposureMotion registered =
         refine_motions && !shared->poses.empty()
             ? *shared
             : motionFromLatentFrames(given, camera, contrast, o.log, false);
     if (registered.poses.empty()) return std::numeric_limits<double>::infinity();
-    const Trajectory motion = fit(registered.poses);
+    const Trajectory motion = [&] {
+      const std::lock_guard lock(fit_mutex);  // fit reports its knots in the result
+      return fit(registered.poses);
+    }();
     DeblurResult unused;
     const Observation obs =
         o.support_px > 0 ? supportedEvents(given, o.support_px,
@@ -213,11 +258,10 @@ SolvedContrast contrastFromSolves(
                                                camera, motion, registered.inverse_depth, t0, t1),
                                            unused)
                          : given;
-    po.event_robust = o.mid_robust;
     PixelGridProblem problem(obs, camera, motion, registered.inverse_depth, contrast, po);
     std::vector<double> x = problem.start(ediMidFrame(obs, contrast));
     if (refine_motions) problem.refineMotion(x, kRefineSteps);
-    if (solves == 1) {
+    if (first) {
       out.start = startFit(problem, x, obs.blurry);
       out.start_misfits = out.start.misfits() && problem.blurLength() >= kHashBlur;
       if (out.start_misfits) return 0.0;
@@ -228,14 +272,21 @@ SolvedContrast contrastFromSolves(
         events > 0 ? counts.dot(problem.blurResiduals(x)) / (events * channels) : terms.blur;
     return std::log(std::max(misfit, 1e-30));
   };
-  const double lo = std::log(kLeastContrast), hi = std::log(kMostContrast), h = std::log(2.0) / 6;
-  // The walk stays within `band` of c0 (in log c) and inside the range.
-  const double below = std::max(lo, std::log(c0) - band), above = std::min(hi, std::log(c0) + band);
-  double l = std::clamp(std::log(c0), lo + h, hi - h);
-  const double first = misfit(l);
+  // The walk's first two candidates, c0 and one step up, are always solved: at once, each on half
+  // the threads, since a candidate's registration and set-up use two threads poorly (on
+  // nat_motorcycle_blur60_noisy without thresholds, 1.3 times one thread's pace over the search).
+  double first = 0, second = 0;
+  bothAtOnce([&] { first = misfit(l, true); }, [&] { second = misfit(l + h, false); });
+  // Where the first's start misfits, the walk stops there (the second is not counted).
+  int solves = out.start_misfits ? 1 : 2;
   result.parameters["contrast_solves"] = solves;
   if (out.start_misfits) return out;
-  const WalkedLeast walked = walkToLeast(misfit, l, first, h, below, above);
+  const WalkedLeast walked = walkToLeast(
+      [&](double at) {
+        ++solves;
+        return misfit(at, false);
+      },
+      l, first, second, h, below, above);
   l = walked.l;
   out.falls_below_band = walked.falling_at_below && below > lo + h / 2;
   // At an end within half a step of it: the walk's points are c0's steps of 2^(1/6), not the

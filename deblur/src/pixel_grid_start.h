@@ -78,16 +78,16 @@ inline bool refineWalkMotions(double blur_px) {
   constexpr double kLeastBlur = 5, kMostViewSpacing = 2;
   return blur_px >= kLeastBlur && blur_px <= kMostViewSpacing * (kSearchViews - 1);
 }
-// The walk of contrastFromSolves over l = log c: from l (its misfit `first`) by steps of h, up
-// while misfit(l) falls, else down, within [below, above]; the least seen, moved to the vertex of
-// the parabola through it and its neighbours, and whether the misfit was still falling where
-// `below` stopped it (falling_at_below: the point beyond was not tried).
+// The walk of contrastFromSolves over l = log c: from l (its misfit `first`, and `second` at l + h)
+// by steps of h, up while misfit(l) falls, else down, within [below, above]; the least seen, moved
+// to the vertex of the parabola through it and its neighbours, and whether the misfit was still
+// falling where `below` stopped it (falling_at_below: the point beyond was not tried).
 struct WalkedLeast {
   double l = 0;
   bool falling_at_below = false;
 };
 WalkedLeast walkToLeast(const std::function<double(double)>& misfit, double l, double first,
-                        double h, double below, double above);
+                        double second, double h, double below, double above);
 // The thresholds refined from `c0` by short solves of the grid, each on the motion registered at
 // its own c, or where refineWalkMotions(blur_px) on the first one's registration refined at its own
 // c and without the smoothness: the c within `band` of c0 (in log c) at which the solved image

@@ -2388,7 +2388,7 @@ TEST(Benerf, TheWalkForCSaysWhereItsMisfitStillFellAtTheBandsFoot) {
       tried.push_back(l);
       return misfit(l);
     };
-    return benerf_detail::walkToLeast(counted, l0, misfit(l0), h, below, above);
+    return benerf_detail::walkToLeast(counted, l0, misfit(l0), misfit(l0 + h), h, below, above);
   };
   const auto falling = walk([](double l) { return l; });
   EXPECT_NEAR(falling.l, below, 1e-12);
@@ -2603,32 +2603,40 @@ TEST(Benerf, PixelGridTakesTwoViewsPerPixelOfBlurUpToItsBoundOrTheViewsSetting) 
 
 // A whole run of the grid (EDI's latent frames, the registration, the motion's refinements and the
 // solves) gives the same bits at one thread and at three: the image, the trajectory and every
-// figure of the summary but the thread count.
+// figure of the summary but the thread count. With the thresholds given, and without them, where
+// the walk for c solves its first two candidates at once, each on part of the threads.
 TEST(Benerf, PixelGridGivesTheSameBitsAtAnyThreadCount) {
   if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
-  const Observation obs = presetObservation("planes", 15);
-  const DeblurRequest request{{obs.blurry.midExposure()}, {}};
-  BenerfOptions o = benerfBudget("fast");
-  o.iterations = 10;
-  std::vector<DeblurResult> runs;
-  for (const int threads : {1, 3}) {
-    o.threads = threads;
-    runs.push_back(BenerfDeblurrer(o).run(obs, request));
-  }
-  ASSERT_EQ(runs[0].parameters.at("representation_pixels"), 1.0);
-  ASSERT_GT(runs[0].parameters.at("registered_times"), 0.0);
-  EXPECT_EQ(runs[1].parameters.at("threads"), 3.0);
-  EXPECT_EQ(cv::norm(runs[0].frames[0].image, runs[1].frames[0].image, cv::NORM_INF), 0.0);
-  ASSERT_TRUE(runs[0].trajectory && runs[1].trajectory);
-  ASSERT_EQ(runs[0].trajectory->size(), runs[1].trajectory->size());
-  for (size_t i = 0; i < runs[0].trajectory->size(); ++i) {
-    const SE3 &a = (*runs[0].trajectory)[i].pose, &b = (*runs[1].trajectory)[i].pose;
-    EXPECT_EQ(a.translation(), b.translation());
-    EXPECT_EQ(a.rotation().coeffs(), b.rotation().coeffs());
-  }
-  for (const auto& [name, value] : runs[0].parameters) {
-    if (name == "threads") continue;
-    EXPECT_EQ(value, runs[1].parameters.at(name)) << name;
+  for (const bool given : {true, false}) {
+    SCOPED_TRACE(given ? "thresholds given" : "thresholds not given");
+    Observation obs = presetObservation("planes", 15);
+    if (!given) obs.contrast.reset();
+    const DeblurRequest request{{obs.blurry.midExposure()}, {}};
+    BenerfOptions o = benerfBudget("fast");
+    o.iterations = 10;
+    std::vector<DeblurResult> runs;
+    for (const int threads : {1, 3}) {
+      o.threads = threads;
+      runs.push_back(BenerfDeblurrer(o).run(obs, request));
+    }
+    ASSERT_EQ(runs[0].parameters.at("representation_pixels"), 1.0);
+    ASSERT_GT(runs[0].parameters.at("registered_times"), 0.0);
+    if (!given) {
+      ASSERT_GE(runs[0].parameters.at("contrast_solves"), 3.0);
+    }
+    EXPECT_EQ(runs[1].parameters.at("threads"), 3.0);
+    EXPECT_EQ(cv::norm(runs[0].frames[0].image, runs[1].frames[0].image, cv::NORM_INF), 0.0);
+    ASSERT_TRUE(runs[0].trajectory && runs[1].trajectory);
+    ASSERT_EQ(runs[0].trajectory->size(), runs[1].trajectory->size());
+    for (size_t i = 0; i < runs[0].trajectory->size(); ++i) {
+      const SE3 &a = (*runs[0].trajectory)[i].pose, &b = (*runs[1].trajectory)[i].pose;
+      EXPECT_EQ(a.translation(), b.translation());
+      EXPECT_EQ(a.rotation().coeffs(), b.rotation().coeffs());
+    }
+    for (const auto& [name, value] : runs[0].parameters) {
+      if (name == "threads") continue;
+      EXPECT_EQ(value, runs[1].parameters.at(name)) << name;
+    }
   }
 }
 

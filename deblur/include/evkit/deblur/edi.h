@@ -46,7 +46,7 @@ EdiOptions ediOptions(const MethodSettings& settings);
 // Parses EDI's settings (ediSettings) and makes the method.
 std::unique_ptr<Deblurrer> makeEdi(const MethodSettings& settings);
 
-// Per-pixel level durations of one exposure, reusable across c values and latent times.
+// One exposure's events by pixel, reusable across c values and latent times.
 class EdiModel {
  public:
   // Events of [t_begin, t_end] (others are ignored), on a width x height sensor.
@@ -71,14 +71,8 @@ class EdiModel {
   // Pixel p's gain at t with the linear levels: 1 / ((1/T) integral exp(l(s) - l(t)) ds).
   double linearGain(size_t p, int64_t t_us, double c_on, double c_off) const;
 
-  struct Segment {
-    int32_t on, off;  // events counted since the window start
-    double duration;  // µs at this level
-  };
   int width_, height_;
   int64_t t_begin_, t_end_;
-  std::vector<uint32_t> seg_first_;  // pixel p: segments_[seg_first_[p] .. seg_first_[p+1])
-  std::vector<Segment> segments_;
   PixelEventIndex events_;  // the exposure's events by pixel
   int max_events_per_pixel_ = 0;
 };
