@@ -272,11 +272,19 @@ SolvedContrast contrastFromSolves(
         events > 0 ? counts.dot(problem.blurResiduals(x)) / (events * channels) : terms.blur;
     return std::log(std::max(misfit, 1e-30));
   };
-  // The walk's first two candidates, c0 and one step up, are always solved: at once, each on half
-  // the threads, since a candidate's registration and set-up use two threads poorly (on
-  // nat_motorcycle_blur60_noisy without thresholds, 1.3 times one thread's pace over the search).
+  // The walk's first two candidates, c0 and one step up, are always solved (unless the first's
+  // start misfits). Where each registers its own motion, at once, each on half the threads: a
+  // registration and a problem's set-up use two threads poorly (nat_motorcycle_blur60_noisy
+  // without thresholds: the search 11.6 -> 9.4 s). Not where they share one registration and
+  // refine it, which two threads share well (nat_coffee_plane_blur15_noisy: 4.3 -> 5.2 s at once;
+  // BENCHMARKS.md, "The walk's first two candidates at once").
   double first = 0, second = 0;
-  bothAtOnce([&] { first = misfit(l, true); }, [&] { second = misfit(l + h, false); });
+  if (refine_motions) {
+    first = misfit(l, true);
+    if (!out.start_misfits) second = misfit(l + h, false);
+  } else {
+    bothAtOnce([&] { first = misfit(l, true); }, [&] { second = misfit(l + h, false); });
+  }
   // Where the first's start misfits, the walk stops there (the second is not counted).
   int solves = out.start_misfits ? 1 : 2;
   result.parameters["contrast_solves"] = solves;
