@@ -1,5 +1,5 @@
-// EDI at 346x260 with ~1e6 events in a 100 ms exposure: building the per-pixel level durations,
-// one latent frame, and the contrast search (grid + golden section).
+// EDI at 346x260 with ~1e6 events in a 100 ms exposure: building the model (the events
+// grouped by pixel), one latent frame, and the contrast search (grid + golden section).
 //
 //   EVKIT_BENCH_DIR=/tmp/evkit-bench ./build/benchmarks/evkit_edi_bench
 // (writes edi_events.h5 and edi_blurry.npy there for benchmarks/reference_edi.py)
