@@ -61,7 +61,7 @@ void bothAtOnce(const std::function<void()>& a, const std::function<void()>& b) 
 #pragma omp parallel num_threads(2)
   {
     const int me = omp_get_thread_num(), team = omp_get_num_threads();
-    omp_set_num_threads(std::max(1, (threads + 1 - me) / team));
+    omp_set_num_threads(std::max(1, (threads + team - 1 - me) / team));  // the threads shared out
     for (int task = me; task < 2; task += team) {
       try {
         (task == 0 ? a : b)();
