@@ -200,6 +200,10 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
         .number("hysteresis", &O::hysteresis, {0, 1},
                 "the pixel grid's events against the sensor's reference level, which trails the "
                 "log level by this many thresholds (0: the level itself)")
+        .flag("precondition", &O::precondition,
+              "the pixel grid's L-BFGS scaled cell by cell by its loss's curvature (its "
+              "Gauss-Newton diagonal), so that bright and dark cells, and cells few views see, "
+              "converge alike")
         .flag("occlusion", &O::occlusion,
               "the pixel grid's views see the nearest surface along their rays, and what a near "
               "surface hides at mid-exposure from a second layer of cells behind it")

@@ -651,6 +651,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   po.chroma_smoothness = o.chroma_smooth;
   po.hysteresis = o.hysteresis;
   po.occlusion = o.occlusion;
+  po.precondition = o.precondition;
   if (o.smooth > 0) po.smoothness = o.smooth;
   po.max_views = std::max(po.min_views, o.max_views);
   po.views_per_px = o.views_per_px;
@@ -896,6 +897,9 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     terms = at_start.terms;
   else
     iterations = problem->solve(x, steps, &terms, deadline, progress, convergedIn(0));
+  result.timings_s["train_first_solve"] = secondsSince(train_start);
+  result.parameters["first_solve_steps"] = iterations;
+  const auto depth_start = Clock::now();
   // The depth from the solved image (BenerfOptions::depth_steps), before the motion's rounds.
   int depth_kept = 0;
   while (depth_kept < (keep_start ? 0 : o.depth_steps) && Clock::now() < deadline &&
@@ -903,8 +907,11 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     ++depth_kept;
   if (depth_kept > 0) inverse_depth = problem->inverseDepth();
   result.parameters["depth_steps_kept"] = depth_kept;
+  result.timings_s["train_depth"] = secondsSince(depth_start);
   for (int round = 1; round <= rounds && Clock::now() < deadline; ++round) {
+    const auto round_start = Clock::now();
     problem->refineMotion(x, kRoundMotionSteps);
+    result.timings_s["train_round_motion"] = secondsSince(round_start);
     const int done = iterations;
     iterations += problem->solve(
         x, std::max(PixelGridProblem::kConvergedSteps, steps - done), &terms, deadline,

@@ -745,12 +745,141 @@ PixelGridProblem::DataTerms PixelGridProblem::dataTerms(const std::vector<double
   return {blur_sum * blur_scale, event_sum};
 }
 
+std::vector<double> PixelGridProblem::curvature(const std::vector<double>& u) const {
+  std::vector<double> x, slope;
+  intensities(u, x, &slope);
+  const int W = camera_.width, C = channels_, V = views_;
+  const size_t N = directions_.size();
+  const int lag = eventLag();
+  const double blur_scale = blur_weight_ / (static_cast<double>(N) * C),
+               event_scale = options_.beta / (static_cast<double>(N) * V),
+               window_scale = lag > 0 ? options_.beta / (static_cast<double>(N) * (V - lag)) : 0;
+  const LogMapping& log = options_.log;
+  const size_t front = static_cast<size_t>(canvas_w_) * canvas_h_, cells = x.size() / C;
+  double grey_weight[3];
+  nerf::greyBackward(1.0, C, grey_weight);
+  // Each row block's sums over the canvas rows and the layer behind's cells it reaches
+  // (block_rows_, block_behind_), added in block order below: the same bits at any thread count.
+  std::vector<std::vector<double>> front_parts(kRowBlocks), behind_parts(kRowBlocks);
+#pragma omp parallel
+  {
+    std::vector<double> colour(static_cast<size_t>(C));
+    BlurQuadrature quadrature;
+    // A pixel's cells and their shares of its blur mean: its samples in one cell add before the
+    // square (the blur term's residual is the pixel's mean).
+    std::vector<std::pair<size_t, double>> blur;
+    std::vector<double> share(cells, 0.0);
+    std::vector<size_t> touched;
+#pragma omp for schedule(dynamic)
+    for (int block = 0; block < kRowBlocks; ++block) {
+      const auto bi = static_cast<size_t>(block);
+      const auto [first, last] = block_rows_[bi];
+      std::vector<double>& part = front_parts[bi];
+      part.assign(static_cast<size_t>(last - first) * canvas_w_ * C, 0.0);
+      std::vector<double>& part_behind = behind_parts[bi];
+      const size_t first_behind = layered() ? static_cast<size_t>(block_behind_[bi][0]) : 0;
+      if (layered())
+        part_behind.assign(static_cast<size_t>(block_behind_[bi][1]) * C - first_behind * C, 0.0);
+      const auto at = [&](size_t cell) -> double* {
+        return cell < front ? &part[(cell - static_cast<size_t>(first) * canvas_w_) * C]
+                            : &part_behind[(cell - front - first_behind) * C];
+      };
+      // A sample's four cells: its share of the blur mean, and its log level's in `comparisons`
+      // squared comparisons of weight 1 each (the weights summed).
+      const auto add = [&](const Taps& t, double blur_share, double comparisons) {
+        const std::array<size_t, 4> corner = corners(t);
+        const double w[4] = {(1 - t.ay) * (1 - t.ax), (1 - t.ay) * t.ax, t.ay * (1 - t.ax),
+                             t.ay * t.ax};
+        double level_slope = 0;
+        if (comparisons > 0) {
+          if (behind(t))
+            sampleBehind(x.data(), t, colour.data());
+          else
+            sample(x.data(), canvas_w_, C, t, colour.data());
+          const double grey = nerf::greyOf(colour.data(), C);
+          level_slope = grey > 0 ? log.logSlope(grey) : 0.0;
+        }
+        for (int n = 0; n < 4; ++n) {
+          blur.emplace_back(corner[static_cast<size_t>(n)], blur_share * w[n]);
+          double* d = at(corner[static_cast<size_t>(n)]);
+          for (int c = 0; c < C; ++c) {
+            const double event = level_slope * grey_weight[c] * w[n];
+            d[c] += 2 * comparisons * event * event;
+          }
+        }
+      };
+      for (int y = blockBegin(block); y < blockBegin(block + 1); ++y) {
+        for (int px = 0; px < W; ++px) {
+          const size_t pixel = static_cast<size_t>(y) * W + px;
+          blur.clear();
+          blurQuadrature(&taps_[viewSlot(0, pixel)], quadrature);
+          for (int k = 0; k < V; ++k) {
+            const double windows =
+                (lag > 0 && k + lag < V ? 1 : 0) + (lag > 0 && k >= lag ? 1 : 0);
+            add(taps_[viewSlot(k, pixel)], quadrature.view_weight[static_cast<size_t>(k)],
+                event_scale + windows * window_scale);
+          }
+          for (size_t i = 0; i < quadrature.between.size(); ++i)
+            if (quadrature.sampled[i]) add(quadrature.between[i], quadrature.between_weight, 0);
+          // Mid-exposure's cell, compared with every view.
+          const size_t mid = midCell(px, y);
+          const double grey = nerf::greyOf(&x[mid], C);
+          const double level_slope = grey > 0 ? log.logSlope(grey) : 0.0;
+          double* d = at(mid / static_cast<size_t>(C));
+          for (int c = 0; c < C; ++c) {
+            const double event = level_slope * grey_weight[c];
+            d[c] += 2 * V * event_scale * event * event;
+          }
+          touched.clear();
+          for (const auto& [cell, a] : blur) {
+            if (share[cell] == 0) touched.push_back(cell);
+            share[cell] += a;
+          }
+          for (const size_t cell : touched) {
+            const double a = share[cell];
+            double* dc = at(cell);
+            for (int c = 0; c < C; ++c) dc[c] += 2 * blur_scale * a * a;
+            share[cell] = 0;
+          }
+        }
+      }
+    }
+  }
+  std::vector<double> d(x.size(), 0.0);
+  for (int block = 0; block < kRowBlocks; ++block) {
+    const auto bi = static_cast<size_t>(block);
+    const size_t from = static_cast<size_t>(block_rows_[bi][0]) * canvas_w_ * C;
+    for (size_t i = 0; i < front_parts[bi].size(); ++i) d[from + i] += front_parts[bi][i];
+    if (!layered()) continue;
+    const size_t from_behind = (front + static_cast<size_t>(block_behind_[bi][0])) * C;
+    for (size_t i = 0; i < behind_parts[bi].size(); ++i)
+      d[from_behind + i] += behind_parts[bi][i];
+  }
+  // Through the log mapping to the unknowns, and the smoothness's pairs (each cell is in up to
+  // four, each of curvature 2 scale in either cell, as evaluate weighs them).
+  const double per_pixel =
+      static_cast<double>(behind_w_) * behind_h_ * C * (kDefaultCells * kDefaultCells);
+  const double pair_curvature = 2 * options_.smoothness / per_pixel;
+  double sum = 0;
+  for (size_t j = 0; j < d.size(); ++j) {
+    d[j] = d[j] * slope[j] * slope[j] + 4 * pair_curvature;
+    sum += d[j];
+  }
+  // No cell softer than a thousandth of the mean: one that no sample reaches and no smoothness
+  // holds would take an unbounded step.
+  const double floor = 1e-3 * sum / static_cast<double>(std::max<size_t>(1, d.size()));
+  for (double& v : d) v = std::max(v, floor);
+  return d;
+}
+
 int PixelGridProblem::solve(std::vector<double>& x, int iterations, Terms* terms,
                             std::chrono::steady_clock::time_point deadline,
                             const std::function<void(int, double)>& progress,
                             double converged) const {
   // L-BFGS (Nocedal and Wright, Numerical Optimization, algorithm 7.4) with a backtracking line
-  // search on the Armijo condition. With a million cells the two-loop recursion is bound by memory
+  // search on the Armijo condition, its initial inverse Hessian gamma M^-1 where M is the loss's
+  // curvature at the start (curvature(); PixelGridOptions::precondition, else the identity) and
+  // gamma = s.y / y.M^-1.y of the newest pair (the scaling of their eq. 7.20 in M's metric). With a million cells the two-loop recursion is bound by memory
   // traffic, not arithmetic: the history is kept in float (it only shapes the direction), in a ring
   // that is allocated once, and each pass over the cells both finishes one pair's update and takes
   // the next pair's dot product.
@@ -764,6 +893,13 @@ int PixelGridProblem::solve(std::vector<double>& x, int iterations, Terms* terms
   Terms at_x, at_new;  // the loss's terms at x and at the line search's trial
   double f = evaluate(x, &g, &at_x);
   std::vector<double> losses{f};  // after each step, the start's first
+  std::vector<double> inverse_curvature;
+  if (options_.precondition) {
+    inverse_curvature = curvature(x);
+    for (double& v : inverse_curvature) v = 1 / v;
+  }
+  const bool preconditioned = !inverse_curvature.empty();
+  const double* m = inverse_curvature.data();
   int done = 0;
   for (; done < iterations && std::chrono::steady_clock::now() < deadline; ++done) {
     // First loop, newest pair to oldest: alpha_i = rho_i s_i.q, q -= alpha_i y_i (q starts as g).
@@ -792,17 +928,22 @@ int PixelGridProblem::solve(std::vector<double>& x, int iterations, Terms* terms
         for (std::ptrdiff_t j = 0; j < n; ++j) q[j] -= a_i * y[j];
       }
     }
-    // The initial Hessian's scale: s.y / y.y of the newest pair, or a first step of 1e-3 in
+    // The initial Hessian's scale: s.y / y.M^-1.y of the newest pair, or a first step of 1e-3 in
     // intensity.
     double gamma = 0;
     if (stored > 0) {
       const float* s0 = s_ring[slot(0)].data();
       const float* y0 = y_ring[slot(0)].data();
       const double sy = orderedSum(n, [&](std::ptrdiff_t j) { return double(s0[j]) * y0[j]; });
-      const double yy = orderedSum(n, [&](std::ptrdiff_t j) { return double(y0[j]) * y0[j]; });
+      const double yy = orderedSum(n, [&](std::ptrdiff_t j) {
+        return double(y0[j]) * y0[j] * (preconditioned ? m[j] : 1.0);
+      });
       gamma = sy / yy;
     } else {
-      const double gg = orderedSum(n, [&](std::ptrdiff_t j) { return g[j] * g[j]; });
+      const double gg = orderedSum(n, [&](std::ptrdiff_t j) {
+        const double mg = preconditioned ? m[j] * g[j] : g[j];
+        return mg * mg;
+      });
       gamma = 1e-3 / std::sqrt(std::max(gg, 1e-300));
     }
     // Second loop, oldest pair to newest: beta_i = rho_i y_i.r, r += (alpha_i - beta_i) s_i, where
@@ -810,12 +951,12 @@ int PixelGridProblem::solve(std::vector<double>& x, int iterations, Terms* terms
     if (stored > 0) {
       const float* y = y_ring[slot(stored - 1)].data();
       dot = orderedSum(n, [&](std::ptrdiff_t j) {
-        q[j] *= gamma;
+        q[j] *= preconditioned ? gamma * m[j] : gamma;
         return y[j] * q[j];
       });
     } else {
 #pragma omp parallel for schedule(static)
-      for (std::ptrdiff_t j = 0; j < n; ++j) q[j] *= gamma;
+      for (std::ptrdiff_t j = 0; j < n; ++j) q[j] *= preconditioned ? gamma * m[j] : gamma;
     }
     for (int age = stored - 1; age >= 0; --age) {
       const double c = alpha[age] - rho[slot(age)] * dot;

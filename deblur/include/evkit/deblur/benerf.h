@@ -90,6 +90,9 @@ struct BenerfOptions {
   // The pixel grid's views see the nearest surface along their rays, and what a near surface hides
   // at mid-exposure from a second layer of cells (PixelGridOptions::occlusion).
   bool occlusion = true;
+  // The pixel grid's L-BFGS scaled cell by cell by the loss's curvature (PixelGridOptions::
+  // precondition).
+  bool precondition = true;
   // The pixel grid's smoothness of the log image (PixelGridOptions::smoothness). 0: chosen by the
   // events it was not fitted to. Its solve is run with the events of a quarter of the pixels held
   // out, at 0.01, 0.03 and 0.1 in turn while the held-out pixels' comparisons with mid-exposure

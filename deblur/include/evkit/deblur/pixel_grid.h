@@ -71,6 +71,13 @@ struct PixelGridOptions {
   // background the near surface's edge uncovers has cells of its own (PixelGridProblem::layered).
   // false: each pixel's two lookups alone (a cheaper problem for the thresholds' search).
   bool occlusion = true;
+  // solve's L-BFGS takes the loss's curvature in each unknown (PixelGridProblem::curvature) as its
+  // initial inverse Hessian's shape, scaled as usual by the newest pair. The blur term is stiffer
+  // in bright cells than in dark ones by the intensity squared (the unknowns are log intensities)
+  // and the cells that few views see (the margin, the layer behind) are softer than the rest, so
+  // that one step size for all held the bright cells back. Measured at `fast` on the natural suite
+  // (BENCHMARKS.md, "The solve's curvature"): 16% fewer steps, the most where the solve was longest.
+  bool precondition = true;
   LogMapping log;
 };
 
@@ -138,6 +145,14 @@ class PixelGridProblem {
       std::vector<double>& x, int iterations, Terms* terms = nullptr,
       std::chrono::steady_clock::time_point deadline = std::chrono::steady_clock::time_point::max(),
       const std::function<void(int, double)>& progress = {}, double converged = 0) const;
+  // A Gauss-Newton approximation of the loss's curvature in each unknown at u, each residual's
+  // samples taken alone (a pixel's samples that share a cell are not summed before squaring) and
+  // the reference level's plays as the level itself: solve's preconditioner (L-BFGS's initial
+  // inverse Hessian, up to its scale). The blur term's curvature in a cell's log intensity grows as
+  // the intensity squared and the event term's does not, so that bright cells are stiffer than
+  // dark ones by the image's contrast squared, and a cell that few views see (the margin, the
+  // layer behind) is softer than one that all see.
+  std::vector<double> curvature(const std::vector<double>& u) const;
   // Levenberg-Marquardt steps on the motion with the image u fixed, on every other row and column
   // (the normal equations and each trial motion's blur and event terms there; a step is taken when
   // they fall); returns those terms at the motion kept.
