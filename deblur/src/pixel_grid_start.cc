@@ -227,7 +227,8 @@ SolvedContrast contrastFromSolves(
   // Nor the preconditioner (PixelGridOptions::precondition): ten plain steps are what the walk's
   // misfits were measured on. Preconditioned, the ten steps go further where the cells are bright
   // and the walk's least moved low (astronaut_plane and coffee_plane at 120 x 90: 0.184 and 0.169
-  // for the truth's 0.2, against 0.195 and 0.199 with plain steps; gravel_ground 0.157 against 0.191).
+  // for the truth's 0.2, against 0.195 and 0.199 with plain steps; gravel_ground 0.157 against
+  // 0.191).
   po.precondition = false;
   const int64_t t0 = given.blurry.exposure_start_us, t1 = given.blurry.exposure_end_us;
   const cv::Mat counts = exposureEventCounts(given);
