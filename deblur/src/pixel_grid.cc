@@ -814,8 +814,7 @@ std::vector<double> PixelGridProblem::curvature(const std::vector<double>& u) co
           blur.clear();
           blurQuadrature(&taps_[viewSlot(0, pixel)], quadrature);
           for (int k = 0; k < V; ++k) {
-            const double windows =
-                (lag > 0 && k + lag < V ? 1 : 0) + (lag > 0 && k >= lag ? 1 : 0);
+            const double windows = (lag > 0 && k + lag < V ? 1 : 0) + (lag > 0 && k >= lag ? 1 : 0);
             add(taps_[viewSlot(k, pixel)], quadrature.view_weight[static_cast<size_t>(k)],
                 event_scale + windows * window_scale);
           }
@@ -852,8 +851,7 @@ std::vector<double> PixelGridProblem::curvature(const std::vector<double>& u) co
     for (size_t i = 0; i < front_parts[bi].size(); ++i) d[from + i] += front_parts[bi][i];
     if (!layered()) continue;
     const size_t from_behind = (front + static_cast<size_t>(block_behind_[bi][0])) * C;
-    for (size_t i = 0; i < behind_parts[bi].size(); ++i)
-      d[from_behind + i] += behind_parts[bi][i];
+    for (size_t i = 0; i < behind_parts[bi].size(); ++i) d[from_behind + i] += behind_parts[bi][i];
   }
   // Through the log mapping to the unknowns, and the smoothness's pairs (each cell is in up to
   // four, each of curvature 2 scale in either cell, as evaluate weighs them).
@@ -879,10 +877,10 @@ int PixelGridProblem::solve(std::vector<double>& x, int iterations, Terms* terms
   // L-BFGS (Nocedal and Wright, Numerical Optimization, algorithm 7.4) with a backtracking line
   // search on the Armijo condition, its initial inverse Hessian gamma M^-1 where M is the loss's
   // curvature at the start (curvature(); PixelGridOptions::precondition, else the identity) and
-  // gamma = s.y / y.M^-1.y of the newest pair (the scaling of their eq. 7.20 in M's metric). With a million cells the two-loop recursion is bound by memory
-  // traffic, not arithmetic: the history is kept in float (it only shapes the direction), in a ring
-  // that is allocated once, and each pass over the cells both finishes one pair's update and takes
-  // the next pair's dot product.
+  // gamma = s.y / y.M^-1.y of the newest pair (the scaling of their eq. 7.20 in M's metric). With a
+  // million cells the two-loop recursion is bound by memory traffic, not arithmetic: the history is
+  // kept in float (it only shapes the direction), in a ring that is allocated once, and each pass
+  // over the cells both finishes one pair's update and takes the next pair's dot product.
   constexpr int kMemory = 8;
   const auto n = static_cast<std::ptrdiff_t>(x.size());
   std::vector<std::vector<float>> s_ring(kMemory), y_ring(kMemory);

@@ -76,7 +76,8 @@ struct PixelGridOptions {
   // in bright cells than in dark ones by the intensity squared (the unknowns are log intensities)
   // and the cells that few views see (the margin, the layer behind) are softer than the rest, so
   // that one step size for all held the bright cells back. Measured at `fast` on the natural suite
-  // (BENCHMARKS.md, "The solve's curvature"): 16% fewer steps, the most where the solve was longest.
+  // (BENCHMARKS.md, "The solve's curvature"): 16% fewer steps, the most where the solve was
+  // longest.
   bool precondition = true;
   LogMapping log;
 };
