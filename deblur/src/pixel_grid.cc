@@ -597,16 +597,20 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
   return blur + event;
 }
 
+PixelGridProblem::TermScales PixelGridProblem::termScales() const {
+  const auto N = static_cast<double>(directions_.size());
+  const int lag = eventLag();
+  return {blur_weight_ / (N * channels_), options_.beta / (N * views_),
+          lag > 0 ? options_.beta / (N * (views_ - lag)) : 0.0};
+}
+
 PixelGridProblem::DataTerms PixelGridProblem::dataTerms(const std::vector<double>& x, int stride,
                                                         BlockGradients* blocks) const {
   if (stride != 1 && blocks)
     throw std::invalid_argument("PixelGridProblem::dataTerms: a gradient needs every pixel");
   const int W = camera_.width, C = channels_, V = views_;
-  const size_t N = directions_.size();
   const int lag = eventLag();
-  const double blur_scale = blur_weight_ / (static_cast<double>(N) * C),
-               event_scale = options_.beta / (static_cast<double>(N) * V),
-               window_scale = lag > 0 ? options_.beta / (static_cast<double>(N) * (V - lag)) : 0;
+  const auto [blur_scale, event_scale, window_scale] = termScales();
   const LogMapping& log = options_.log;
   // Each row block's sums and gradient on its own (block_rows_), added in block order.
   const auto row = static_cast<size_t>(canvas_w_) * C;
@@ -749,11 +753,8 @@ std::vector<double> PixelGridProblem::curvature(const std::vector<double>& u) co
   std::vector<double> x, slope;
   intensities(u, x, &slope);
   const int W = camera_.width, C = channels_, V = views_;
-  const size_t N = directions_.size();
   const int lag = eventLag();
-  const double blur_scale = blur_weight_ / (static_cast<double>(N) * C),
-               event_scale = options_.beta / (static_cast<double>(N) * V),
-               window_scale = lag > 0 ? options_.beta / (static_cast<double>(N) * (V - lag)) : 0;
+  const auto [blur_scale, event_scale, window_scale] = termScales();
   const LogMapping& log = options_.log;
   const size_t front = static_cast<size_t>(canvas_w_) * canvas_h_, cells = x.size() / C;
   double grey_weight[3];
@@ -1027,11 +1028,10 @@ void PixelGridProblem::normalEquations(const std::vector<double>& x, int stride,
   // the image's gradient where each view sees it (each pixel's point at its inverse depth moved by
   // the view's pose); every `stride`-th row and column.
   const int W = camera_.width, H = camera_.height, C = channels_, V = views_;
-  const size_t N = directions_.size();
   const LogMapping& log = options_.log;
   const Eigen::Index dim = 6 * static_cast<Eigen::Index>(motion_.knots().size());
-  const double blur_scale = blur_weight_ / (static_cast<double>(N) * C),
-               event_scale = options_.beta / (static_cast<double>(N) * V);
+  const TermScales scales = termScales();
+  const double blur_scale = scales.blur, event_scale = scales.event;
   std::vector<SE3> poses(static_cast<size_t>(V));
   std::vector<Matrix3> rotations(static_cast<size_t>(V));
   std::vector<std::array<SE3, 6>> moved(static_cast<size_t>(V));

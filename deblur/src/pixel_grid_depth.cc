@@ -22,13 +22,10 @@ PixelGridProblem::DepthNormals PixelGridProblem::depthNormals(const std::vector<
   // block order (the same bits at any thread count).
   const std::vector<double> x = intensities(u);
   const int W = camera_.width, H = camera_.height, C = channels_, V = views_, M = referencePlays();
-  const size_t N = directions_.size();
   const LogMapping& log = options_.log;
   const int lag = eventLag();
   // In the loss's units (evaluate's): as dataTerms weighs the two terms.
-  const double blur_scale = blur_weight_ / (static_cast<double>(N) * C),
-               scale = options_.beta / (static_cast<double>(N) * V),
-               window_scale = lag > 0 ? options_.beta / (static_cast<double>(N) * (V - lag)) : 0.0;
+  const auto [blur_scale, scale, window_scale] = termScales();
   std::vector<Matrix3> rotations(static_cast<size_t>(V));
   std::vector<Vector3> translations(static_cast<size_t>(V));
   for (int k = 0; k < V; ++k) {

@@ -275,6 +275,13 @@ class PixelGridProblem {
     std::vector<std::vector<double>> front, behind;
   };
   DataTerms dataTerms(const std::vector<double>& x, int stride, BlockGradients* blocks) const;
+  // The weights of the data terms' squared residuals in evaluate's units: the blur term's (a mean
+  // over pixels and channels), and the event term's comparisons with mid-exposure and its windows'
+  // (means over pixels and views, and over the views a window fits, weighted by beta).
+  struct TermScales {
+    double blur = 0, event = 0, window = 0;
+  };
+  TermScales termScales() const;
   // The Gauss-Newton normal equations of the loss in the knots' right perturbations, from
   // intensities x (the weighted sum's half gradient and its approximate Hessian).
   void normalEquations(const std::vector<double>& x, int stride, Eigen::MatrixXd& hessian,
