@@ -911,7 +911,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
   for (int round = 1; round <= rounds && Clock::now() < deadline; ++round) {
     const auto round_start = Clock::now();
     problem->refineMotion(x, kRoundMotionSteps);
-    result.timings_s["train_round_motion"] = secondsSince(round_start);
+    result.timings_s["train_round_motion"] += secondsSince(round_start);  // over every round
     const int done = iterations;
     iterations += problem->solve(
         x, std::max(PixelGridProblem::kConvergedSteps, steps - done), &terms, deadline,

@@ -495,8 +495,7 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
   // any `subdivision` S: a smooth image's difference between neighbouring cells falls as 1 / S and
   // its pairs of cells grow as S^2, so the squares' sum over the canvas does not move with S. (Once
   // per cell, 3 x 3 cells smoothed 4/9 as much as 2 x 2.)
-  const double per_pixel = static_cast<double>(behind_w_) * behind_h_ * C *  // the canvas's pixels
-                           (kDefaultCells * kDefaultCells);
+  const double per_pixel = smoothnessPixels();
   const double scale = options_.smoothness / per_pixel;
   const double chroma = C > 1 ? options_.chroma_smoothness / per_pixel : 0.0;
   // The penalty's derivative with respect to the difference u[b + c] - u[a + c] of two
@@ -595,6 +594,10 @@ double PixelGridProblem::evaluate(const std::vector<double>& u, std::vector<doub
   const double blur = data.blur, event = data.event + smooth + smooth_behind;
   if (terms) *terms = {blur / blur_weight_, event / options_.beta};
   return blur + event;
+}
+
+double PixelGridProblem::smoothnessPixels() const {
+  return static_cast<double>(behind_w_) * behind_h_ * channels_ * (kDefaultCells * kDefaultCells);
 }
 
 PixelGridProblem::TermScales PixelGridProblem::termScales() const {
@@ -766,9 +769,8 @@ std::vector<double> PixelGridProblem::curvature(const std::vector<double>& u) co
   {
     std::vector<double> colour(static_cast<size_t>(C));
     BlurQuadrature quadrature;
-    // A pixel's cells and their shares of its blur mean: its samples in one cell add before the
-    // square (the blur term's residual is the pixel's mean).
-    std::vector<std::pair<size_t, double>> blur;
+    // A pixel's shares of its blur mean by cell, and the cells it touched: its samples in one cell
+    // add before the square (the blur term's residual is the pixel's mean).
     std::vector<double> share(cells, 0.0);
     std::vector<size_t> touched;
 #pragma omp for schedule(dynamic)
@@ -801,8 +803,10 @@ std::vector<double> PixelGridProblem::curvature(const std::vector<double>& u) co
           level_slope = grey > 0 ? log.logSlope(grey) : 0.0;
         }
         for (int n = 0; n < 4; ++n) {
-          blur.emplace_back(corner[static_cast<size_t>(n)], blur_share * w[n]);
-          double* d = at(corner[static_cast<size_t>(n)]);
+          const size_t cell = corner[static_cast<size_t>(n)];
+          if (share[cell] == 0) touched.push_back(cell);
+          share[cell] += blur_share * w[n];
+          double* d = at(cell);
           for (int c = 0; c < C; ++c) {
             const double event = level_slope * grey_weight[c] * w[n];
             d[c] += 2 * comparisons * event * event;
@@ -812,7 +816,7 @@ std::vector<double> PixelGridProblem::curvature(const std::vector<double>& u) co
       for (int y = blockBegin(block); y < blockBegin(block + 1); ++y) {
         for (int px = 0; px < W; ++px) {
           const size_t pixel = static_cast<size_t>(y) * W + px;
-          blur.clear();
+          touched.clear();
           blurQuadrature(&taps_[viewSlot(0, pixel)], quadrature);
           for (int k = 0; k < V; ++k) {
             const double windows = (lag > 0 && k + lag < V ? 1 : 0) + (lag > 0 && k >= lag ? 1 : 0);
@@ -829,11 +833,6 @@ std::vector<double> PixelGridProblem::curvature(const std::vector<double>& u) co
           for (int c = 0; c < C; ++c) {
             const double event = level_slope * grey_weight[c];
             d[c] += 2 * V * event_scale * event * event;
-          }
-          touched.clear();
-          for (const auto& [cell, a] : blur) {
-            if (share[cell] == 0) touched.push_back(cell);
-            share[cell] += a;
           }
           for (const size_t cell : touched) {
             const double a = share[cell];
@@ -856,9 +855,7 @@ std::vector<double> PixelGridProblem::curvature(const std::vector<double>& u) co
   }
   // Through the log mapping to the unknowns, and the smoothness's pairs (each cell is in up to
   // four, each of curvature 2 scale in either cell, as evaluate weighs them).
-  const double per_pixel =
-      static_cast<double>(behind_w_) * behind_h_ * C * (kDefaultCells * kDefaultCells);
-  const double pair_curvature = 2 * options_.smoothness / per_pixel;
+  const double pair_curvature = 2 * options_.smoothness / smoothnessPixels();
   double sum = 0;
   for (size_t j = 0; j < d.size(); ++j) {
     d[j] = d[j] * slope[j] * slope[j] + 4 * pair_curvature;

@@ -282,6 +282,9 @@ class PixelGridProblem {
     double blur = 0, event = 0, window = 0;
   };
   TermScales termScales() const;
+  // The smoothness's divisor (evaluate): the canvas's pixels times the channels and the default
+  // cells a pixel, so that its weights are per pixel at any subdivision.
+  double smoothnessPixels() const;
   // The Gauss-Newton normal equations of the loss in the knots' right perturbations, from
   // intensities x (the weighted sum's half gradient and its approximate Hessian).
   void normalEquations(const std::vector<double>& x, int stride, Eigen::MatrixXd& hessian,
