@@ -707,6 +707,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     // declined: six frames not in the suites, +1.57 dB on average with the band (-0.12 to +5.87;
     // BENCHMARKS.md, "The registration at the counts' c"). No frame of the suites moved.
     const MisfitBar counted_bar = MisfitBar::kUnlessRepeated;
+    const auto again_start = Clock::now();
     const ExposureMotion again =
         motionFromLatentFrames(given, camera, Contrast{counted.c, counted.c * ratio}, o.log, false,
                                kScoredIntervals, counted_bar);
@@ -716,6 +717,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
       counted_path = fit(again.poses);
       counted = countsAndRatio(again, counted_path);
     }
+    result.timings_s["contrast_again"] = secondsSince(again_start);
     result.parameters["contrast_ratio"] = ratio;
     result.parameters["contrast_from_counts"] = counted.c;
     result.parameters["contrast_counts_correlation"] = counted.correlation;
@@ -730,6 +732,7 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
     // field 31.99 dB). Not where the motion registered at 2c misfits, nor where the count along it
     // is outside the range: such a motion tells nothing either way (the text preset at 120 x 90:
     // 0.211 along the motion registered at 0.2, 9.13 along the one at 0.4).
+    const auto doubled_start = Clock::now();
     const double counted_blur = PixelGridProblem::longestImagePath(
         camera, counted_path, counted_motion->inverse_depth, t0, t1);
     const ExposureMotion doubled =
@@ -739,14 +742,17 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
                                      o.log, false);
     const double doubled_count = doubled.poses.empty() ? 0 : counts(doubled, fit(doubled.poses)).c;
     const bool counts_checked = inRange(doubled_count);
+    result.timings_s["contrast_doubled"] = secondsSince(doubled_start);
     if (counts_checked) {
       const double follow = std::log2(doubled_count / counted.c);
       result.parameters["contrast_counts_follow"] = follow;
       if (follow > kMostCountsFollow)
         return decline("the events' counts follow any thresholds the motion is registered at");
     }
+    const auto walk_start = Clock::now();
     const SolvedContrast found = contrastFromSolves(given, camera, fit, po, ratio, counted.c,
                                                     kCountsBand, counted_blur, o, result);
+    result.timings_s["contrast_walk"] = secondsSince(walk_start);
     if (found.start_misfits) {
       result.parameters["start_blur_misfit"] = found.start.misfit;
       result.parameters["start_change"] = found.start.change;
@@ -774,8 +780,10 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
       return decline("neither the events' counts nor its short solves told the thresholds");
     contrast = found.contrast;
     result.parameters["contrast_estimated"] = contrast.on;
+    const auto at_found_start = Clock::now();
     ExposureMotion at_found =
         motionFromLatentFrames(given, camera, contrast, o.log, true, kScoredIntervals, counted_bar);
+    result.timings_s["contrast_at_found"] = secondsSince(at_found_start);
     result.parameters["contrast_registered_at_estimate"] = at_found.poses.empty() ? 0 : 1;
     if (!at_found.poses.empty()) {
       registered = std::move(at_found);

@@ -2235,6 +2235,15 @@ TEST(Benerf, ThresholdsNotGivenAreRefinedByShortSolvesOfTheGrid) {
   EXPECT_NEAR(p.at("contrast_from_counts"), truth, 0.15 * truth);
   EXPECT_GE(p.at("contrast_solves"), 3.0);
   EXPECT_NEAR(p.at("contrast_estimated"), truth, 0.15 * truth);
+  // The search's parts are timed apart, and together lie within the whole search.
+  const auto& seconds = m.benerf.timings_s;
+  double parts = 0;
+  for (const char* part :
+       {"contrast_again", "contrast_doubled", "contrast_walk", "contrast_at_found"}) {
+    EXPECT_GT(seconds.at(part), 0.0) << part;
+    parts += seconds.at(part);
+  }
+  EXPECT_LE(parts, seconds.at("contrast"));
   EXPECT_GT(m.benerf_psnr, m.edi_psnr + 5.0)
       << "BeNeRF " << m.benerf_psnr << " dB, EDI (c searched) " << m.edi_psnr << " dB";
 }
