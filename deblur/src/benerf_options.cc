@@ -151,6 +151,9 @@ const SettingsTable<BenerfOptions>& benerfSettings() {
                  }})
         .flag("estimate_contrast", &O::estimate_contrast,
               "without thresholds, take EDI's searched c when it lies inside its range")
+        .flag("contrast_walk", &O::contrast_walk,
+              "without thresholds, the pixel grid refines the events' counts' c by short solves "
+              "(0: runs at the counts' c, about a quarter less time)")
         .integer("windows", &O::windows, {1},
                  "event windows per step, the event pixels dealt among them")
         .integer("prefit", &O::prefit, {0},

@@ -750,8 +750,14 @@ bool runPixelGrid(const Observation& given, const DeblurRequest& request, const 
         return decline("the events' counts follow any thresholds the motion is registered at");
     }
     const auto walk_start = Clock::now();
-    const SolvedContrast found = contrastFromSolves(given, camera, fit, po, ratio, counted.c,
-                                                    kCountsBand, counted_blur, o, result);
+    // Without the walk (BenerfOptions::contrast_walk), the counts' c as it is: inside the range,
+    // and no walk to tell whether it is told.
+    SolvedContrast found;
+    found.contrast = Contrast{counted.c, counted.c * ratio};
+    if (o.contrast_walk)
+      found = contrastFromSolves(given, camera, fit, po, ratio, counted.c, kCountsBand,
+                                 counted_blur, o, result);
+    result.parameters["contrast_walked"] = o.contrast_walk ? 1 : 0;
     result.timings_s["contrast_walk"] = secondsSince(walk_start);
     if (found.start_misfits) {
       result.parameters["start_blur_misfit"] = found.start.misfit;
