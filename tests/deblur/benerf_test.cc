@@ -1833,16 +1833,22 @@ TEST(Benerf, TheDepthsAreChosenWhereTheyDepartFromThePlaneAlikeInBothHalves) {
       << "BeNeRF " << m.benerf_psnr << " dB, EDI " << m.edi_psnr << " dB";
 }
 
-// As on real data: contrast.txt removed, then BeNeRF at `fast` for 300 steps (the c is found
-// before them) and EDI with its searched c; `truth`: the thresholds that were removed. `samples`:
-// the hash field's samples per ray (the pixel grid has none).
-AtMidExposure withoutThresholds(Observation obs, double* truth, int samples = 8) {
-  EXPECT_TRUE(obs.contrast);
-  *truth = obs.contrast ? obs.contrast->on : std::nan("");
-  obs.contrast.reset();
+// BeNeRF's options for the runs without thresholds: `fast` for 300 steps (the c is found before
+// them); `samples`: the hash field's samples per ray (the pixel grid has none).
+BenerfOptions withoutThresholdsOptions(int samples = 8) {
   BenerfOptions o = benerfBudget("fast");
   o.iterations = 300;
   o.samples = samples;
+  return o;
+}
+
+// As on real data: contrast.txt removed, then BeNeRF with `o` and EDI with its searched c;
+// `truth`: the thresholds that were removed.
+AtMidExposure withoutThresholds(Observation obs, double* truth,
+                                const BenerfOptions& o = withoutThresholdsOptions()) {
+  EXPECT_TRUE(obs.contrast);
+  *truth = obs.contrast ? obs.contrast->on : std::nan("");
+  obs.contrast.reset();
   return benerfAndEdi(obs, o);
 }
 
@@ -2223,16 +2229,12 @@ TEST(Benerf, WithoutThresholdsEachPixelsMisfitCountsByItsEvents) {
 // far ahead of EDI at its searched c.
 TEST(Benerf, WithoutTheWalkTheGridRunsAtTheCountsC) {
   if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
-  auto natural = naturalObservation("cameraman_grass", 1, 30);
+  const auto natural = naturalObservation("cameraman_grass", 1, 30);
   if (!natural) GTEST_SKIP() << "no photographs in " << synth::defaultPhotoDir();
-  ASSERT_TRUE(natural->contrast);
-  const double truth = natural->contrast->on;
-  natural->contrast.reset();
-  BenerfOptions o = benerfBudget("fast");
-  o.iterations = 300;
-  o.samples = 8;
+  BenerfOptions o = withoutThresholdsOptions();
   o.contrast_walk = false;
-  const AtMidExposure m = benerfAndEdi(*natural, o);
+  double truth = 0;
+  const AtMidExposure m = withoutThresholds(*natural, &truth, o);
   const auto& p = m.benerf.parameters;
   EXPECT_EQ(p.at("contrast_walked"), 0.0);
   EXPECT_EQ(p.count("contrast_solves"), 0u);
@@ -2394,7 +2396,8 @@ TEST(Benerf, WithoutThresholdsTheMotionAtTheCountsCMayMisfitAsWithThem) {
 TEST(Benerf, WithoutThresholdsTheGridDeclinesWhereItsStartMisfits) {
   if (sanitizerPass()) GTEST_SKIP() << kReachedByShorterTests;
   double truth = 0;
-  const AtMidExposure m = withoutThresholds(presetObservation("rgbd", 15), &truth, 4);
+  const AtMidExposure m =
+      withoutThresholds(presetObservation("rgbd", 15), &truth, withoutThresholdsOptions(4));
   const auto& p = m.benerf.parameters;
   EXPECT_NEAR(p.at("contrast_from_counts"), truth, 0.25 * truth);
   EXPECT_EQ(p.at("start_to_hash"), 1.0);
@@ -2474,7 +2477,7 @@ TEST(Benerf, WithoutEventsTheGridRunsAtEdisCAndKeepsTheFrame) {
   Observation obs = presetObservation("planes", 15);
   obs.events = EventStore(obs.events.sensor());
   double truth = 0;
-  const AtMidExposure m = withoutThresholds(obs, &truth, 4);
+  const AtMidExposure m = withoutThresholds(obs, &truth, withoutThresholdsOptions(4));
   const auto& p = m.benerf.parameters;
   EXPECT_TRUE(std::isnan(p.at("contrast_from_counts_searched")));
   EXPECT_EQ(p.at("contrast_edi_retried"), 1.0);
